@@ -1,0 +1,3 @@
+//! restage-appliance: the unattended stage player (state machine, ledger, outputs, inputs).
+
+pub mod output;

@@ -1,0 +1,2 @@
+//! The `restage-author` subcommands: argument parsing, progress, and file I/O around the
+//! library's steps. One file per command.

@@ -1,0 +1,29 @@
+//! `restage-author`: the command line over the authoring library.
+
+mod cli;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(name = "restage-author", version, about = "Author restoration bundles for a restage appliance")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {}
+
+// The allow goes when the first subcommand lands (an empty enum makes main unreachable).
+#[allow(unreachable_code)]
+fn main() -> Result<()> {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().command {}
+}
