@@ -2,6 +2,7 @@
 //! (see ARCHITECTURE.md). Each step is a pure function of files in and files out.
 
 pub mod capture_set;
+pub mod compensate;
 pub mod eval;
 pub mod imgio;
 pub mod stage_model;
