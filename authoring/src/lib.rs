@@ -2,6 +2,8 @@
 //! (see ARCHITECTURE.md). Each step is a pure function of files in and files out.
 
 pub mod capture_set;
+pub mod classify;
+pub mod color;
 pub mod eval;
 pub mod imgio;
 pub mod stage_model;
