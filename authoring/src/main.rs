@@ -16,6 +16,8 @@ struct Cli {
 enum Command {
     /// Classify a photo's pixels into the picked paint colours (paper §4.1).
     Classify(cli::classify::ClassifyArgs),
+    /// One frame per projector for a restored image, under the light bound (paper §5.1).
+    Compensate(cli::compensate::Args),
 }
 
 fn main() -> Result<()> {
@@ -28,5 +30,6 @@ fn main() -> Result<()> {
         .init();
     match Cli::parse().command {
         Command::Classify(args) => cli::classify::run(&args),
+        Command::Compensate(a) => cli::compensate::run(a),
     }
 }

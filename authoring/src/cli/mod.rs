@@ -2,3 +2,4 @@
 //! library's steps. One file per command.
 
 pub mod classify;
+pub mod compensate;
