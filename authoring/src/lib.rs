@@ -4,4 +4,5 @@
 pub mod capture_set;
 pub mod eval;
 pub mod imgio;
+pub mod restore;
 pub mod stage_model;
