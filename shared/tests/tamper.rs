@@ -245,14 +245,9 @@ fn expired_and_not_yet_valid_are_refused_at_the_one_time_given() {
 #[test]
 fn a_lower_version_than_accepted_is_refused() {
     let f = Fixture::new(&ExampleSpec { version: 5, ..ExampleSpec::small() }, false);
-    let opts = |accepted: Option<u64>| {
-        let last: Box<dyn Fn(&str) -> Option<u64>> =
-            Box::new(move |id: &str| if id == "test-jar-1" { accepted } else { Some(u64::MAX) });
-        last
-    };
     for (accepted, ok) in [(None, true), (Some(4), true), (Some(5), true), (Some(6), false)] {
-        let last = opts(accepted);
-        let o = VerifyOptions { now_unix_s: NOW, last_accepted: &*last, limits: Limits::default() };
+        let last = move |id: &str| if id == "test-jar-1" { accepted } else { Some(u64::MAX) };
+        let o = VerifyOptions { now_unix_s: NOW, last_accepted: &last, limits: Limits::default() };
         match load_with(&f.bytes, &o) {
             Ok(v) => assert!(ok && v.manifest.version == 5),
             Err(e) => assert!(
