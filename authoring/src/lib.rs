@@ -6,5 +6,6 @@ pub mod capture_set;
 pub mod classify;
 pub mod color;
 pub mod eval;
+pub mod export;
 pub mod imgio;
 pub mod stage_model;

@@ -13,10 +13,17 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
+    Keygen(cli::keygen::KeygenArgs),
+    /// Sign compensation's frames and light certificate into a bundle.
+    Bundle(cli::bundle::BundleArgs),
+    /// Summarise a bundle: scenes, projectors, policy, peak lux, hashes.
+    Inspect(cli::inspect::InspectArgs),
+    /// Verify a bundle exactly as the appliance does.
+    Verify(cli::verify::VerifyArgs),
+}
 
-// The allow goes when the first subcommand lands (an empty enum makes main unreachable).
-#[allow(unreachable_code)]
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -25,5 +32,10 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {}
+    match Cli::parse().command {
+        Command::Keygen(a) => cli::keygen::run(&a),
+        Command::Bundle(a) => cli::bundle::run(&a),
+        Command::Inspect(a) => cli::inspect::run(&a),
+        Command::Verify(a) => cli::verify::run(&a),
+    }
 }
