@@ -14,6 +14,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// One frame per projector for a restored image, under the light bound (paper §5.1).
+    Compensate(cli::compensate::Args),
     /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
     Keygen(cli::keygen::KeygenArgs),
     /// Sign compensation's frames and light certificate into a bundle.
@@ -33,6 +35,7 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Compensate(a) => cli::compensate::run(a),
         Command::Keygen(a) => cli::keygen::run(&a),
         Command::Bundle(a) => cli::bundle::run(&a),
         Command::Inspect(a) => cli::inspect::run(&a),
