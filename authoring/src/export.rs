@@ -144,8 +144,10 @@ pub struct BundleDescription {
 impl BundleDescription {
     /// Reads the TOML; relative paths inside are made relative to its folder.
     pub fn load(path: &Path) -> Result<Self, ExportError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ExportError::Io { path: path.into(), source })?;
-        let mut d: Self = toml::from_str(&text).map_err(|source| ExportError::Toml { path: path.into(), source })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|source| ExportError::Io { path: path.into(), source })?;
+        let mut d: Self =
+            toml::from_str(&text).map_err(|source| ExportError::Toml { path: path.into(), source })?;
         let base = path.parent().unwrap_or(Path::new("."));
         let fix = |p: &mut PathBuf| {
             if p.is_relative() {
@@ -219,7 +221,8 @@ pub fn light_model_from(stage: &StageModel, desc: &LightDesc) -> LightModel {
 
 /// Reads an 8-bit frame PNG as XRGB8888 device values. Returns `(width, height, xrgb)`.
 pub fn load_frame(path: &Path) -> Result<(u32, u32, Vec<u8>), ExportError> {
-    let img = image::open(path).map_err(|e| ExportError::Frame { path: path.into(), problem: e.to_string() })?;
+    let img =
+        image::open(path).map_err(|e| ExportError::Frame { path: path.into(), problem: e.to_string() })?;
     if !matches!(img.color(), image::ColorType::Rgb8 | image::ColorType::Rgba8 | image::ColorType::L8) {
         return Err(ExportError::Frame {
             path: path.into(),
@@ -285,10 +288,20 @@ pub fn build_writer(
             "original" => SceneKind::Original,
             "restoration" => SceneKind::Restoration,
             "relit" => SceneKind::Relit,
-            k => return Err(bad(format!("scene {}: kind {k:?} (expected original, restoration or relit)", s.id))),
+            k => {
+                return Err(bad(format!(
+                    "scene {}: kind {k:?} (expected original, restoration or relit)",
+                    s.id
+                )));
+            }
         };
         if s.frames.len() != projectors.len() {
-            return Err(bad(format!("scene {}: {} frames for {} projectors", s.id, s.frames.len(), projectors.len())));
+            return Err(bad(format!(
+                "scene {}: {} frames for {} projectors",
+                s.id,
+                s.frames.len(),
+                projectors.len()
+            )));
         }
         let mut frames = Vec::new();
         for (path, p) in s.frames.iter().zip(&projectors) {

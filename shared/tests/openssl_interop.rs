@@ -11,7 +11,8 @@ use std::process::Command;
 use restage_shared::bundle::example::{ExampleSpec, example_writer};
 use restage_shared::bundle::{BundleReader, HEADER_LEN, SIGNATURE_BLOCK_LEN, VerifyOptions};
 use restage_shared::keys::{
-    KeyId, TrustStore, load_private_key, load_public_key, public_key_to_pem, signing_key_from_seed, write_keypair,
+    KeyId, TrustStore, load_private_key, load_public_key, public_key_to_pem, signing_key_from_seed,
+    write_keypair,
 };
 
 fn openssl(args: &[&str], dir: &Path) -> Option<std::process::Output> {
@@ -128,7 +129,11 @@ fn openssl_verifies_restage_signatures_and_reads_restage_keys() {
         .unwrap()
     };
     let o = verify("signed.bin");
-    assert!(o.status.success(), "openssl refused restage's signature: {}", String::from_utf8_lossy(&o.stdout));
+    assert!(
+        o.status.success(),
+        "openssl refused restage's signature: {}",
+        String::from_utf8_lossy(&o.stdout)
+    );
     assert!(String::from_utf8_lossy(&o.stdout).contains("Signature Verified Successfully"));
     // And OpenSSL refuses it over one changed byte.
     let mut tampered = signed.clone();

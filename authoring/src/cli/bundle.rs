@@ -43,11 +43,22 @@ pub fn run(args: &BundleArgs) -> Result<()> {
         writer = writer.zstd(args.zstd);
     }
     let tmp = args.out.with_extension("partial");
-    let file = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-    let mut out = std::io::BufWriter::new(file);
-    let manifest = writer.write(&key, &mut out).with_context(|| format!("writing {}", args.out.display()))?;
-    let file = out.into_inner().map_err(|e| e.into_error()).context("flushing the bundle")?;
-    file.sync_all().context("syncing the bundle")?;
+    let written = (|| -> Result<_> {
+        let file = std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
+        let mut out = std::io::BufWriter::new(file);
+        let manifest =
+            writer.write(&key, &mut out).with_context(|| format!("writing {}", args.out.display()))?;
+        let file = out.into_inner().map_err(|e| e.into_error()).context("flushing the bundle")?;
+        file.sync_all().context("syncing the bundle")?;
+        Ok(manifest)
+    })();
+    let manifest = match written {
+        Ok(m) => m,
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e);
+        }
+    };
     std::fs::rename(&tmp, &args.out).with_context(|| format!("renaming into {}", args.out.display()))?;
     print!("{}", describe(&manifest, None));
     println!("wrote {}", args.out.display());

@@ -13,11 +13,21 @@ pub struct InspectArgs {
     /// Trust directory of public keys; when given, the signature and validity are checked.
     #[arg(long)]
     pub trust: Option<PathBuf>,
+    /// With --trust: check validity at this Unix time instead of now.
+    #[arg(long)]
+    pub now: Option<i64>,
 }
 
 pub fn run(args: &InspectArgs) -> Result<()> {
     let v = match &args.trust {
-        Some(dir) => verify_file(&args.bundle, dir, &VerifyOptions::at(super::now_unix_s()?))?,
+        Some(dir) => verify_file(
+            &args.bundle,
+            dir,
+            &VerifyOptions::at(match args.now {
+                Some(t) => t,
+                None => super::now_unix_s()?,
+            }),
+        )?,
         None => inspect_file(&args.bundle)?,
     };
     print!("{}", describe(&v.manifest, Some(&v.peaks)));

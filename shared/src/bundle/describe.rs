@@ -8,7 +8,9 @@ use std::path::{Path, PathBuf};
 
 use thiserror::Error;
 
-use super::{BundleError, BundleReader, Compression, Limits, Manifest, SectionKind, VerifiedBundle, VerifyOptions};
+use super::{
+    BundleError, BundleReader, Compression, Limits, Manifest, SectionKind, VerifiedBundle, VerifyOptions,
+};
 use crate::keys::{KeyError, TrustStore};
 use crate::light::{LuxWeighting, PeakIrradiance};
 use crate::policy::IdleMode;
@@ -16,12 +18,13 @@ use crate::policy::IdleMode;
 /// A bundle file refused, naming the file.
 #[derive(Debug, Error)]
 pub enum BundleFileError {
-    #[error("cannot open bundle {path}: {source}")]
-    Open { path: PathBuf, source: std::io::Error },
-    #[error("trust directory: {0}")]
+    #[error("cannot open bundle {path}: {error}")]
+    Open { path: PathBuf, error: std::io::Error },
+    #[error(transparent)]
     Trust(#[from] KeyError),
-    #[error("bundle {path} refused: {source}")]
-    Refused { path: PathBuf, source: BundleError },
+    // The cause is in the message, not chained, so it is printed once.
+    #[error("bundle {path} refused: {problem}")]
+    Refused { path: PathBuf, problem: BundleError },
 }
 
 /// Opens `path`, loads the trust directory, and verifies everything (signature, validity at
@@ -32,16 +35,19 @@ pub fn verify_file(
     opts: &VerifyOptions<'_>,
 ) -> Result<VerifiedBundle<File>, BundleFileError> {
     let trust = TrustStore::load_dir(trust_dir)?;
-    let f = File::open(path).map_err(|source| BundleFileError::Open { path: path.into(), source })?;
-    let refused = |source| BundleFileError::Refused { path: path.into(), source };
+    let f = File::open(path).map_err(|error| BundleFileError::Open { path: path.into(), error })?;
+    let refused = |problem| BundleFileError::Refused { path: path.into(), problem };
     BundleReader::open(f, &trust, opts).map_err(refused)?.verify(|_| Ok(())).map_err(refused)
 }
 
 /// Like [`verify_file`] without a trust store: for describing a bundle only.
 pub fn inspect_file(path: &Path) -> Result<VerifiedBundle<File>, BundleFileError> {
-    let f = File::open(path).map_err(|source| BundleFileError::Open { path: path.into(), source })?;
-    let refused = |source| BundleFileError::Refused { path: path.into(), source };
-    BundleReader::open_unauthenticated(f, Limits::default()).map_err(refused)?.verify(|_| Ok(())).map_err(refused)
+    let f = File::open(path).map_err(|error| BundleFileError::Open { path: path.into(), error })?;
+    let refused = |problem| BundleFileError::Refused { path: path.into(), problem };
+    BundleReader::open_unauthenticated(f, Limits::default())
+        .map_err(refused)?
+        .verify(|_| Ok(()))
+        .map_err(refused)
 }
 
 /// `YYYY-MM-DD HH:MM:SS UTC` for Unix seconds (proleptic Gregorian, no time zones).
@@ -123,12 +129,12 @@ pub fn describe(m: &Manifest, peaks: Option<&[PeakIrradiance]>) -> String {
     let p = &m.policy;
     let _ = writeln!(
         w,
-        "policy    showings up to {} s, cooldown {} s, budgets {} lx·h/day and {} lx·h/year, warn at {:?}, idle {}",
+        "policy    showings up to {} s, cooldown {} s, budgets {} lx·h/day and {} lx·h/year, warn at {}, idle {}",
         p.max_showing_s,
         p.cooldown_s,
         p.daily_budget_lxh,
         p.annual_budget_lxh,
-        p.warn_at.iter().map(|x| format!("{:.0} %", x * 100.0)).collect::<Vec<_>>(),
+        p.warn_at.iter().map(|x| format!("{:.0} %", x * 100.0)).collect::<Vec<_>>().join(", "),
         match &p.idle {
             IdleMode::ProjectorsOff => "projectors off".to_string(),
             IdleMode::Black => "black (projectors on)".to_string(),
@@ -152,7 +158,12 @@ pub fn describe(m: &Manifest, peaks: Option<&[PeakIrradiance]>) -> String {
             Compression::None => String::new(),
             Compression::Zstd => format!(" (zstd from {})", sec.raw_len),
         };
-        let _ = writeln!(w, "  {i:>3}: {what:<32} {:>10} bytes{comp}  blake3 {}", sec.stored_len, hex(&sec.blake3));
+        let _ = writeln!(
+            w,
+            "  {i:>3}: {what:<32} {:>10} bytes{comp}  blake3 {}",
+            sec.stored_len,
+            hex(&sec.blake3)
+        );
     }
     s
 }
