@@ -14,6 +14,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Classify a photo's pixels into the picked paint colours (paper §4.1).
+    Classify(cli::classify::ClassifyArgs),
     /// One frame per projector for a restored image, under the light bound (paper §5.1).
     Compensate(cli::compensate::Args),
     /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
@@ -35,6 +37,7 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Classify(args) => cli::classify::run(&args),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Keygen(a) => cli::keygen::run(&a),
         Command::Bundle(a) => cli::bundle::run(&a),

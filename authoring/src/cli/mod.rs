@@ -2,6 +2,7 @@
 //! library's steps. One file per command.
 
 pub mod bundle;
+pub mod classify;
 pub mod compensate;
 pub mod inspect;
 pub mod keygen;
