@@ -9,5 +9,6 @@ pub mod compensate;
 pub mod eval;
 pub mod export;
 pub mod imgio;
+pub mod relight;
 pub mod restore;
 pub mod stage_model;

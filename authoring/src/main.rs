@@ -18,6 +18,8 @@ enum Command {
     Classify(cli::classify::ClassifyArgs),
     /// One frame per projector for a restored image, under the light bound (paper §5.1).
     Compensate(cli::compensate::Args),
+    /// A virtually re-lit variant of a restored image, with optional material noise (§5.3).
+    Relight(cli::relight::Args),
     /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
     Keygen(cli::keygen::KeygenArgs),
     /// Sign compensation's frames and light certificate into a bundle.
@@ -39,6 +41,7 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::Classify(args) => cli::classify::run(&args),
         Command::Compensate(a) => cli::compensate::run(a),
+        Command::Relight(a) => cli::relight::run(a),
         Command::Keygen(a) => cli::keygen::run(&a),
         Command::Bundle(a) => cli::bundle::run(&a),
         Command::Inspect(a) => cli::inspect::run(&a),

@@ -5,9 +5,9 @@
 //! (`restage_shared::light::max_irradiance`, same semantics).
 //!
 //! A point's rectangle per projector covers, for every camera pixel of its patch that the
-//! projector sees, the 3x3 projector pixels around the measured correspondence (a lens blur
-//! of up to about one pixel) and every pixel whose measured footprint (transport) reaches
-//! that camera pixel. Its coefficient is the largest `eta_ik` over the patch. So the
+//! projector sees, the projector pixels of that camera pixel's footprint (the support
+//! compensation splats onto) grown by one pixel for lens blur, and every pixel whose measured
+//! footprint (transport) reaches that camera pixel. Its coefficient is the largest `eta_ik` over the patch. So the
 //! brightest pixel of the rectangle times the coefficient bounds the light of any point of
 //! the patch: the check over-estimates, never under-estimates.
 
@@ -85,9 +85,12 @@ fn pixel_blocks(stage: &StageModel, geom: &Geometry, k: usize) -> Vec<Block> {
         .map(|i| {
             let mut b = Block::default();
             if geom.eta[i * kn + k] > 0.0 {
+                // The camera pixel's footprint (the splat support) grown by one pixel of blur.
                 let c = geom.coord[i * kn + k];
-                let (x, y) = (c[0].round() as i64, c[1].round() as i64);
-                b.include(x - 1, y - 1, x + 2, y + 2, w, h);
+                let hf = geom.half[i * kn + k];
+                let lo = |v: f32, h: f32| (v - h - 0.5).ceil() as i64 - 1;
+                let hi = |v: f32, h: f32| (v + h + 0.5).floor() as i64 + 2;
+                b.include(lo(c[0], hf[0]), lo(c[1], hf[1]), hi(c[0], hf[0]), hi(c[1], hf[1]), w, h);
             }
             b
         })

@@ -19,7 +19,15 @@ pub struct Geometry {
     pub eta: Vec<f32>,
     /// Projector pixel coordinate (continuous, pixel centres at integers); NaN where unseen.
     pub coord: Vec<[f32; 2]>,
+    /// Half-extent (projector pixels, x and y) of the camera pixel's footprint in the
+    /// projector image, from the neighbouring correspondences: 0.5 where the camera samples
+    /// the surface at least as finely as the projector, up to [`MAX_HALF`] where coarser.
+    pub half: Vec<[f32; 2]>,
 }
+
+/// Largest footprint half-extent used (projector pixels); beyond it a camera pixel is
+/// treated as sampling only the centre of its footprint.
+pub const MAX_HALF: f32 = 4.0;
 
 impl Geometry {
     /// Evaluates the model from the stage's points, normals, poses and measured
@@ -60,13 +68,45 @@ impl Geometry {
                 }
             },
         );
-        Self { points: n, projectors: kn, l, eta, coord }
+        let half = footprint_half_extents(&coord, kn, stage.camera.width as usize);
+        Self { points: n, projectors: kn, l, eta, coord, half }
     }
 
     /// Whether any projector lights point `i`.
     pub fn covered(&self, i: usize) -> bool {
         self.eta[i * self.projectors..(i + 1) * self.projectors].iter().any(|&e| e > 0.0)
     }
+}
+
+/// Per point and projector, half the largest step to a seen 4-neighbour's coordinate.
+fn footprint_half_extents(coord: &[[f32; 2]], kn: usize, w: usize) -> Vec<[f32; 2]> {
+    let n = coord.len() / kn.max(1);
+    (0..n * kn)
+        .into_par_iter()
+        .map(|ik| {
+            let (i, k) = (ik / kn, ik % kn);
+            let c = coord[ik];
+            let mut h = [0.5f32; 2];
+            if !c[0].is_finite() {
+                return h;
+            }
+            let (x, y) = (i % w, i / w);
+            let neighbours = [
+                (x > 0).then(|| i - 1),
+                (x + 1 < w).then(|| i + 1),
+                (y > 0).then(|| i - w),
+                (i + w < n).then(|| i + w),
+            ];
+            for j in neighbours.into_iter().flatten() {
+                let d = coord[j * kn + k];
+                if d[0].is_finite() {
+                    h[0] = h[0].max(0.5 * (d[0] - c[0]).abs());
+                    h[1] = h[1].max(0.5 * (d[1] - c[1]).abs());
+                }
+            }
+            h.map(|v| v.min(MAX_HALF))
+        })
+        .collect()
 }
 
 /// A projector's centre of projection in the camera frame: `C = -R^T t`.

@@ -10,8 +10,8 @@
 //! The global scale `s` is the largest that keeps every point under the bound (black level
 //! included, fix 2) and every projector unsaturated (fix 1) — except for a user-chosen small
 //! fraction of points (`clip_fraction`), which are dimmed locally instead of darkening the
-//! whole object. Outputs of the points falling on one projector pixel are averaged
-//! (bilinear splatting), pixels lighting no object point stay black, and outputs go through
+//! whole object. Outputs of the points falling on one projector pixel are averaged (tent
+//! splatting over each camera pixel's footprint), pixels lighting no object point stay black, and outputs go through
 //! the inverse responses to 8-bit values.
 
 pub mod certificate;
@@ -281,30 +281,50 @@ pub fn compensate_prepared(
             margin: params.margin,
         });
     }
-    // Per camera pixel, the light available above the floor of its certificate point.
-    let headroom = |i: usize| -> [f64; 3] {
-        let pt = cert.point_of_pixel[i];
-        std::array::from_fn(|c| (limit - room - prep.floor[pt as usize][c]).max(0.0))
-    };
-
+    let t0 = std::time::Instant::now();
     let mut weights = vec![0.0f32; n * kn];
     weights
         .par_chunks_mut(kn)
         .zip(geom.l.par_chunks(kn))
         .for_each(|(w, l)| weights::point_weights(l, params.m, w));
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: weights done");
 
-    // Per covered point, the largest scale it can take (bound, saturation), +inf if any.
-    let usable = |i: usize| {
-        geom.covered(i)
-            && stage.gain[i].iter().all(|g| g.is_finite() && *g > 0.0)
-            && target.data[i].iter().all(|v| v.is_finite())
-    };
-    let caps: Vec<Option<(f64, f64)>> = (0..n)
+    // The object points compensation works on, in raster order.
+    let idx: Vec<u32> = (0..n as u32)
         .into_par_iter()
-        .map(|i| {
-            if !usable(i) {
-                return None;
+        .filter(|&i| {
+            let i = i as usize;
+            geom.covered(i)
+                && stage.gain[i].iter().all(|g| g.is_finite() && *g > 0.0)
+                && target.data[i].iter().all(|v| v.is_finite())
+        })
+        .collect();
+    if idx.is_empty() {
+        return Err(CompensateError::NoCoverage);
+    }
+    let covered = idx.len();
+    // Per point, the light available under the bound (lux per channel, above the floor of its
+    // certificate point), divided by how much the certificate will over-count this point's
+    // light (its coefficient over this pixel's own efficiency, per projector, weighted): the
+    // frames then mostly pass the check as made, and enforcement only mops up.
+    let headroom = |i: usize| -> [f64; 3] {
+        let pt = cert.point_of_pixel[i] as usize;
+        let mut rho = 0.0f64;
+        for k in 0..kn {
+            let (w, eta) = (weights[i * kn + k] as f64, geom.eta[i * kn + k] as f64);
+            if w > 0.0 && eta > 0.0 {
+                rho += w * cert.projectors[k].2[pt].lux_per_unit as f64 / eta;
             }
+        }
+        let rho = rho.max(1.0);
+        std::array::from_fn(|c| (limit - room - prep.floor[pt][c]).max(0.0) / rho)
+    };
+
+    // Per point, the largest scale it can take under the bound and under saturation.
+    let caps: Vec<(f64, f64)> = idx
+        .par_iter()
+        .map(|&i| {
+            let i = i as usize;
             let (g, a, t, b) = (stage.gain[i], stage.ambient[i], target.data[i], headroom(i));
             let mut bound = f64::INFINITY;
             let mut sat = f64::INFINITY;
@@ -322,23 +342,23 @@ pub fn compensate_prepared(
                     }
                 }
             }
-            Some((bound, sat))
+            (bound, sat)
         })
         .collect();
-    let covered = caps.iter().filter(|c| c.is_some()).count();
-    if covered == 0 {
-        return Err(CompensateError::NoCoverage);
-    }
-    let mut per_point: Vec<f64> = caps.iter().flatten().map(|(b, s)| b.min(*s)).collect();
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: caps done");
+    let mut per_point: Vec<f64> = caps.iter().map(|(b, s)| b.min(*s)).collect();
     let q = ((params.clip_fraction * covered as f64).floor() as usize).min(covered - 1);
     let (_, &mut s, _) = per_point.select_nth_unstable_by(q, f64::total_cmp);
     let scale = if s.is_finite() { s.max(0.0) } else { 0.0 };
+    let tol = 1.0 + 1e-9;
+    let by_bound = caps.iter().filter(|(b, _)| b * tol < scale).count();
+    let by_sat = caps.iter().filter(|(_, s)| s * tol < scale).count();
 
     // Per point demand (lux above black, per channel), clipped locally where needed.
-    let demand: Vec<Option<[f64; 3]>> = (0..n)
-        .into_par_iter()
-        .map(|i| {
-            caps[i]?;
+    let demand: Vec<[f64; 3]> = idx
+        .par_iter()
+        .map(|&i| {
+            let i = i as usize;
             let (g, a, t, b) = (stage.gain[i], stage.ambient[i], target.data[i], headroom(i));
             let mut d: [f64; 3] = std::array::from_fn(|c| {
                 ((scale * t[c].max(0.0) as f64 - a[c] as f64) / g[c] as f64).max(0.0)
@@ -358,17 +378,10 @@ pub fn compensate_prepared(
             if f < 1.0 {
                 d = d.map(|v| v * f.max(0.0));
             }
-            Some(d)
+            d
         })
         .collect();
-    let tol = 1.0 + 1e-9;
-    let (mut by_bound, mut by_sat) = (0, 0);
-    for (i, c) in caps.iter().enumerate() {
-        if let (Some((b, s)), Some(_)) = (c, demand[i]) {
-            by_bound += (*b * tol < scale) as usize;
-            by_sat += (*s * tol < scale) as usize;
-        }
-    }
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: demand done");
 
     // Splat each point's relative output onto the projector pixels around it (averaging).
     let mut frames: Vec<RgbImage> = (0..kn)
@@ -377,32 +390,34 @@ pub fn compensate_prepared(
             let p = &stage.projectors[k];
             let (pw, ph) = (p.width as usize, p.height as usize);
             let mut acc = vec![[0.0f32; 4]; pw * ph];
-            for i in 0..n {
-                let Some(d) = demand[i] else { continue };
+            for (&i, d) in idx.iter().zip(&demand) {
+                let i = i as usize;
                 let eta = geom.eta[i * kn + k];
                 if eta <= 0.0 {
                     continue;
                 }
                 let w = weights[i * kn + k] as f64;
                 let r = d.map(|v| (w * v / eta as f64) as f32);
+                // Tent splat over the camera pixel's footprint: bilinear when the camera samples
+                // finer than the projector, wider (no holes) when coarser.
                 let c = geom.coord[i * kn + k];
-                let (x0, y0) = (c[0].floor(), c[1].floor());
-                let (fx, fy) = (c[0] - x0, c[1] - y0);
-                for (dx, dy, bw) in [
-                    (0, 0, (1.0 - fx) * (1.0 - fy)),
-                    (1, 0, fx * (1.0 - fy)),
-                    (0, 1, (1.0 - fx) * fy),
-                    (1, 1, fx * fy),
-                ] {
-                    let (x, y) = (x0 as i64 + dx, y0 as i64 + dy);
-                    if bw <= 0.0 || x < 0 || y < 0 || x >= pw as i64 || y >= ph as i64 {
-                        continue;
+                let hf = geom.half[i * kn + k];
+                let (rx, ry) = (hf[0] + 0.5, hf[1] + 0.5);
+                let (xa, xb) = (((c[0] - rx).ceil() as i64).max(0), ((c[0] + rx).floor() as i64).min(pw as i64 - 1));
+                let (ya, yb) = (((c[1] - ry).ceil() as i64).max(0), ((c[1] + ry).floor() as i64).min(ph as i64 - 1));
+                for y in ya..=yb {
+                    let wy = 1.0 - (y as f32 - c[1]).abs() / ry;
+                    for x in xa..=xb {
+                        let bw = wy * (1.0 - (x as f32 - c[0]).abs() / rx);
+                        if bw <= 0.0 {
+                            continue;
+                        }
+                        let a = &mut acc[y as usize * pw + x as usize];
+                        for ch in 0..3 {
+                            a[ch] += bw * r[ch];
+                        }
+                        a[3] += bw;
                     }
-                    let a = &mut acc[y as usize * pw + x as usize];
-                    for ch in 0..3 {
-                        a[ch] += bw * r[ch];
-                    }
-                    a[3] += bw;
                 }
             }
             let inv = &prep.inverse[k];
@@ -417,6 +432,7 @@ pub fn compensate_prepared(
         .collect();
 
     // Fix 3: the guarantee, on the final 8-bit frames.
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: splat done");
     let enf = guarantee::enforce(cert, &prep.inverse, &prep.floor, &mut frames, limit);
     let lux: Vec<f64> = cert
         .point_of_pixel
@@ -428,9 +444,11 @@ pub fn compensate_prepared(
     // leaves this function.
     let light = certificate::light_model(stage, params.e_bound_lux, params.margin, room);
     let shared = cert.to_shared();
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: enforce done");
     let independent = certificate::independent_peak(&light, &shared, &frames)
         .and_then(|peak| check_bound(&light, "compensation", &peak).map(|()| peak))
         .map_err(CompensateError::IndependentCheck)?;
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: independent check done");
     debug_assert!(independent.lux >= peak_lux - 1e-6 * peak_lux.max(1.0));
     tracing::info!(
         scale,

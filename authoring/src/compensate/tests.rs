@@ -80,15 +80,21 @@ fn projector_pixels_lighting_no_object_point_stay_black() {
     let s = synthetic_stage(2, 3);
     let c = compensate(&s.model, &target(&s, 0), &Params::new(200.0, Exponent::Finite(5.0), 0.05).unwrap())
         .unwrap();
+    let g = Geometry::new(&s.model);
     for (k, frame) in c.frames.iter().enumerate() {
         let p = &s.model.projectors[k];
+        // Pixels whose centre lies inside some object point's footprint in this projector.
         let mut near = vec![false; (p.width * p.height) as usize];
-        for cc in &s.model.correspondences[k] {
-            if cc[0].is_finite() {
-                let (x0, y0) = (cc[0].floor() as i64, cc[1].floor() as i64);
-                for (x, y) in [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)] {
-                    if x >= 0 && y >= 0 && x < p.width as i64 && y < p.height as i64 {
-                        near[(y * p.width as i64 + x) as usize] = true;
+        for i in 0..g.points {
+            let cc = g.coord[i * 2 + k];
+            if !cc[0].is_finite() {
+                continue;
+            }
+            let h = g.half[i * 2 + k];
+            for y in 0..p.height {
+                for x in 0..p.width {
+                    if (x as f32 - cc[0]).abs() < h[0] + 0.5 && (y as f32 - cc[1]).abs() < h[1] + 0.5 {
+                        near[(y * p.width + x) as usize] = true;
                     }
                 }
             }

@@ -71,17 +71,20 @@ pub fn point_weights(l: &[f32], m: Exponent, w: &mut [f32]) {
             }
         }
         Exponent::Finite(m) => {
-            // Normalising by the largest L keeps L^m finite for any m.
-            let mut sum = 0.0f64;
+            // Normalising by the largest L keeps L^m finite for any m (the largest term is 1,
+            // so the sum is at least 1). Whole m use repeated multiplication (fast, exact).
+            let whole = m.fract() == 0.0 && m <= 64.0;
+            let mut sum = 0.0f32;
             for (wi, &li) in w.iter_mut().zip(l) {
                 if li > 0.0 {
-                    let v = (li as f64 / lmax as f64).powf(m);
-                    *wi = v as f32;
+                    let r = li / lmax;
+                    let v = if whole { r.powi(m as i32) } else { (r as f64).powf(m) as f32 };
+                    *wi = v;
                     sum += v;
                 }
             }
             for wi in w.iter_mut() {
-                *wi = (*wi as f64 / sum) as f32;
+                *wi /= sum;
             }
         }
     }
