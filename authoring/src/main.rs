@@ -14,8 +14,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Calibrate the stage: capture set in, stage model out, with a PNG report and a PLY model.
+    Calibrate(cli::calibrate::CalibrateArgs),
     /// Decode structured light to correspondence maps (our captures or OpenCV's order).
     Decode(cli::decode::DecodeArgs),
+    /// Compare a step's output with the virtual stage's ground truth (table and JSON).
+    Eval(cli::eval::EvalArgs),
 }
 
 fn main() -> Result<()> {
@@ -27,6 +31,8 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Calibrate(args) => cli::calibrate::run(args),
         Command::Decode(args) => cli::decode::run(args),
+        Command::Eval(args) => cli::eval::run(args),
     }
 }

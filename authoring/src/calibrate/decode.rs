@@ -97,6 +97,8 @@ pub struct ProjectorDecode {
     pub y: Vec<f32>,
     /// White minus black per pixel (how strongly this projector lights it).
     pub contrast: Vec<f32>,
+    /// Grey response (256 entries, 0 at input 0, 1 at 255) measured from gray ramps, if any.
+    pub response: Option<Vec<f32>>,
     pub quality: DecodeQuality,
 }
 
@@ -526,8 +528,13 @@ pub fn decode_projector(
             threshold: params.min_contrast,
         });
     }
-    let response = if params.use_phase { measure_response(images, &white, &black, &lit)? } else { None };
-    let reference = Reference { white: &white, black: &black, lit: &lit, response: response.as_deref() };
+    let response = measure_response(images, &white, &black, &lit)?;
+    let reference = Reference {
+        white: &white,
+        black: &black,
+        lit: &lit,
+        response: if params.use_phase { response.as_deref() } else { None },
+    };
     let (xr, mx) = decode_axis(images, projector, Axis::X, projector_width, &reference, params)?;
     let (yr, my) = decode_axis(images, projector, Axis::Y, projector_height, &reference, params)?;
     let mut x = xr.coord;
@@ -587,7 +594,7 @@ pub fn decode_projector(
             "projector {projector}: decoded only {decoded} of {pixels} camera pixels; does it see the object?"
         ));
     }
-    Ok(ProjectorDecode { width, height, x, y, contrast, quality })
+    Ok(ProjectorDecode { width, height, x, y, contrast, response, quality })
 }
 
 /// Pattern images held in memory (tests, benches, the virtual stage in-process).

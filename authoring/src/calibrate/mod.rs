@@ -2,6 +2,11 @@
 //! command runs them in sequence (decode -> selfcal -> triangulate -> ...).
 
 pub mod decode;
+pub mod geometry;
+pub mod ply;
+pub mod report;
+pub mod selfcal;
+pub mod triangulate;
 
 use std::path::PathBuf;
 

@@ -5,8 +5,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::Args;
+use restage_authoring::calibrate::CalibrateError;
 use restage_authoring::calibrate::decode::{self, CaptureImages, DecodeParams, DecodeQuality};
-use restage_authoring::capture_set::CaptureManifest;
+use restage_authoring::calibrate::selfcal::{self, ProjectorObservations, SelfCalParams};
+use restage_authoring::capture_set::{CameraIntrinsics, CaptureManifest};
 
 #[derive(Args)]
 pub struct DecodeArgs {
@@ -30,6 +32,19 @@ pub struct DecodeArgs {
     /// boundary.
     #[arg(long)]
     pub strict: bool,
+    /// Camera intrinsics FX,FY,CX,CY (pixels): also try projector self-calibration from the
+    /// decoded correspondences and report whether it is well posed (a planar scene is not).
+    #[arg(long, value_parser = parse_intrinsics)]
+    pub camera_intrinsics: Option<[f64; 4]>,
+}
+
+fn parse_intrinsics(s: &str) -> Result<[f64; 4], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("'{s}': {e}"))?;
+    v.try_into().map_err(|_| format!("'{s}' is not FX,FY,CX,CY"))
 }
 
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -66,6 +81,10 @@ pub fn run(args: DecodeArgs) -> Result<()> {
         };
         let d = decode::decode_projector(&images, 0, pw, ph, &params)?;
         decode::save_maps(&d, 0, pw, ph, &args.out)?;
+        if let Some([fx, fy, cx, cy]) = args.camera_intrinsics {
+            let cam = CameraIntrinsics { width: first.0, height: first.1, fx, fy, cx, cy };
+            selfcal_check(&cam, &d, pw, ph, &args.out)?;
+        }
         qualities.push(d.quality);
     } else {
         let manifest = CaptureManifest::load(&args.capture)?;
@@ -104,6 +123,41 @@ pub fn run(args: DecodeArgs) -> Result<()> {
     std::fs::write(&path, serde_json::to_string_pretty(&qualities)?)
         .with_context(|| format!("writing {}", path.display()))?;
     Ok(())
+}
+
+/// Tries self-calibration on one projector's correspondences and records the verdict in
+/// `selfcal.json`: the figures if it is well posed, the reason if not.
+fn selfcal_check(
+    cam: &CameraIntrinsics,
+    d: &decode::ProjectorDecode,
+    pw: u32,
+    ph: u32,
+    out: &Path,
+) -> Result<()> {
+    let map = d.pairs();
+    let obs = [ProjectorObservations { width: pw, height: ph, map: &map }];
+    let verdict = match selfcal::self_calibrate(cam, &obs, &SelfCalParams::default()) {
+        Ok(r) => {
+            let g = &r.projectors[0];
+            tracing::info!(
+                "self-calibration: f {:.1} cx {:.1} cy {:.1}, RMS {:.3} px",
+                g.f,
+                g.cx,
+                g.cy,
+                r.rms_px
+            );
+            serde_json::json!({"well_posed": true, "f": g.f, "cx": g.cx, "cy": g.cy, "rms_px": r.rms_px,
+                "conditioning": r.conditioning, "warnings": r.warnings})
+        }
+        Err(e @ CalibrateError::IllPosed(_)) => {
+            tracing::warn!("{e}");
+            serde_json::json!({"well_posed": false, "reason": e.to_string()})
+        }
+        Err(e) => return Err(e.into()),
+    };
+    let path = out.join("selfcal.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&verdict)?)
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 /// PNG files of a folder in file-name order.

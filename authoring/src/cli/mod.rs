@@ -1,7 +1,9 @@
 //! The `restage-author` subcommands: argument parsing, progress, and file I/O around the
 //! library's steps. One file per command.
 
+pub mod calibrate;
 pub mod decode;
+pub mod eval;
 
 /// A progress bar on stderr for `len` steps of a long command.
 pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
