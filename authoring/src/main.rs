@@ -20,6 +20,8 @@ enum Command {
     Decode(cli::decode::DecodeArgs),
     /// Compare a step's output with the virtual stage's ground truth (table and JSON).
     Eval(cli::eval::EvalArgs),
+    /// One frame per projector for a restored image, under the light bound (paper §5.1).
+    Compensate(cli::compensate::Args),
 }
 
 fn main() -> Result<()> {
@@ -34,5 +36,6 @@ fn main() -> Result<()> {
         Command::Calibrate(args) => cli::calibrate::run(args),
         Command::Decode(args) => cli::decode::run(args),
         Command::Eval(args) => cli::eval::run(args),
+        Command::Compensate(a) => cli::compensate::run(a),
     }
 }

@@ -1,11 +1,15 @@
-//! Calibration: from a capture set to a stage model. One submodule per step; the `calibrate`
-//! command runs them in sequence (decode -> selfcal -> triangulate -> ...).
+//! Calibration (paper §3 and §5.2): from a capture set to a stage model — geometry, light
+//! transport, projector responses, per-pixel gain and ambient, lux scale. One submodule per
+//! step; the `calibrate` command runs them in sequence.
 
 pub mod decode;
 pub mod geometry;
+pub mod lux;
 pub mod ply;
+pub mod radiometry;
 pub mod report;
 pub mod selfcal;
+pub mod transport;
 pub mod triangulate;
 
 use std::path::PathBuf;

@@ -2,6 +2,7 @@
 //! library's steps. One file per command.
 
 pub mod calibrate;
+pub mod compensate;
 pub mod decode;
 pub mod eval;
 
