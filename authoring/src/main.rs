@@ -20,8 +20,18 @@ enum Command {
     Decode(cli::decode::DecodeArgs),
     /// Compare a step's output with the virtual stage's ground truth (table and JSON).
     Eval(cli::eval::EvalArgs),
+    /// Classify a photo's pixels into the picked paint colours (paper §4.1).
+    Classify(cli::classify::ClassifyArgs),
     /// One frame per projector for a restored image, under the light bound (paper §5.1).
     Compensate(cli::compensate::Args),
+    /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
+    Keygen(cli::keygen::KeygenArgs),
+    /// Sign compensation's frames and light certificate into a bundle.
+    Bundle(cli::bundle::BundleArgs),
+    /// Summarise a bundle: scenes, projectors, policy, peak lux, hashes.
+    Inspect(cli::inspect::InspectArgs),
+    /// Verify a bundle exactly as the appliance does.
+    Verify(cli::verify::VerifyArgs),
 }
 
 fn main() -> Result<()> {
@@ -36,6 +46,11 @@ fn main() -> Result<()> {
         Command::Calibrate(args) => cli::calibrate::run(args),
         Command::Decode(args) => cli::decode::run(args),
         Command::Eval(args) => cli::eval::run(args),
+        Command::Classify(args) => cli::classify::run(&args),
         Command::Compensate(a) => cli::compensate::run(a),
+        Command::Keygen(a) => cli::keygen::run(&a),
+        Command::Bundle(a) => cli::bundle::run(&a),
+        Command::Inspect(a) => cli::inspect::run(&a),
+        Command::Verify(a) => cli::verify::run(&a),
     }
 }
