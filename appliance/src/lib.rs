@@ -1,3 +1,8 @@
 //! restage-appliance: the unattended stage player (state machine, ledger, outputs, inputs).
 
+pub mod config;
+pub mod input;
+pub mod ledger;
 pub mod output;
+pub mod player;
+pub mod show;
