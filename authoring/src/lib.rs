@@ -1,7 +1,11 @@
 //! restage-authoring: the conservator's offline tool, one module per step of the data flow
 //! (see ARCHITECTURE.md). Each step is a pure function of files in and files out.
 
+pub mod calibrate;
 pub mod capture_set;
+pub mod classify;
+pub mod color;
+pub mod compensate;
 pub mod eval;
 pub mod imgio;
 pub mod stage_model;

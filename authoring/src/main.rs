@@ -13,10 +13,13 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Classify a photo's pixels into the picked paint colours (paper §4.1).
+    Classify(cli::classify::ClassifyArgs),
+    /// One frame per projector for a restored image, under the light bound (paper §5.1).
+    Compensate(cli::compensate::Args),
+}
 
-// The allow goes when the first subcommand lands (an empty enum makes main unreachable).
-#[allow(unreachable_code)]
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -25,5 +28,8 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {}
+    match Cli::parse().command {
+        Command::Classify(args) => cli::classify::run(&args),
+        Command::Compensate(a) => cli::compensate::run(a),
+    }
 }

@@ -1,2 +1,5 @@
 //! The `restage-author` subcommands: argument parsing, progress, and file I/O around the
 //! library's steps. One file per command.
+
+pub mod classify;
+pub mod compensate;
