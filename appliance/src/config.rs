@@ -52,8 +52,9 @@ pub enum IdleMode {
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct PlayerConfig {
-    /// Between showings: "original", "black" or "off". Default "off".
-    pub idle: IdleMode,
+    /// Between showings: "original", "black" or "off". Default: the bundle policy's idle mode.
+    /// Only a darker choice than the policy's takes effect (off < black < a scene).
+    pub idle: Option<IdleMode>,
     /// Length of the closing cross-fade in ms (0..=10000). Default 1500.
     pub fade_ms: u64,
     /// Frames per second of the cross-fade (1..=120). Default 30.
@@ -71,7 +72,7 @@ pub struct PlayerConfig {
 impl Default for PlayerConfig {
     fn default() -> Self {
         Self {
-            idle: IdleMode::Off,
+            idle: None,
             fade_ms: 1500,
             fade_fps: 30,
             min_press_interval_ms: 400,
@@ -225,7 +226,11 @@ impl Config {
             return Err(range("player.fade_fps", p.fade_fps.to_string(), "1..=120"));
         }
         if p.min_press_interval_ms > 10_000 {
-            return Err(range("player.min_press_interval_ms", p.min_press_interval_ms.to_string(), "0..=10000"));
+            return Err(range(
+                "player.min_press_interval_ms",
+                p.min_press_interval_ms.to_string(),
+                "0..=10000",
+            ));
         }
         if p.max_showing_ms == Some(0) {
             return Err(range("player.max_showing_ms", "0".into(), "at least 1"));
@@ -235,7 +240,11 @@ impl Config {
             return Err(range("ledger.reserve_ms", l.reserve_ms.to_string(), "100..=60000"));
         }
         if l.renew_ahead_ms < 10 || l.renew_ahead_ms >= l.reserve_ms {
-            return Err(range("ledger.renew_ahead_ms", l.renew_ahead_ms.to_string(), "10..ledger.reserve_ms"));
+            return Err(range(
+                "ledger.renew_ahead_ms",
+                l.renew_ahead_ms.to_string(),
+                "10..ledger.reserve_ms",
+            ));
         }
         if !(-840..=840).contains(&l.utc_offset_minutes) {
             return Err(range("ledger.utc_offset_minutes", l.utc_offset_minutes.to_string(), "-840..=840"));
@@ -248,7 +257,11 @@ impl Config {
             }
             OutputConfig::Kms { connectors, .. } => {
                 if !(1..=8).contains(&connectors.len()) {
-                    return Err(range("output.connectors", format!("{connectors:?}"), "1..=8 connector names"));
+                    return Err(range(
+                        "output.connectors",
+                        format!("{connectors:?}"),
+                        "1..=8 connector names",
+                    ));
                 }
             }
         }
@@ -302,7 +315,8 @@ mod tests {
 
     #[test]
     fn out_of_range_names_key_and_range() {
-        let text = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[player]\nfade_fps = 0\n[output]\nkind = \"window\"\n";
+        let text =
+            "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[player]\nfade_fps = 0\n[output]\nkind = \"window\"\n";
         let e = Config::parse(text, Path::new("c.toml")).unwrap_err().to_string();
         assert!(e.contains("player.fade_fps") && e.contains("1..=120"), "{e}");
     }

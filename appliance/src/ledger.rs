@@ -92,7 +92,9 @@ pub enum LedgerError {
     Corrupt { path: PathBuf, detail: String },
     #[error("bundle for object {object}: version {offered} is older than the accepted version {accepted}")]
     Rollback { object: String, offered: u64, accepted: u64 },
-    #[error("bundle for object {object}: version {version} was accepted with a different content ({accepted_hash})")]
+    #[error(
+        "bundle for object {object}: version {version} was accepted with a different content ({accepted_hash})"
+    )]
     SameVersionDifferentContent { object: String, version: u64, accepted_hash: String },
 }
 
@@ -172,7 +174,8 @@ pub struct Ledger {
 impl Ledger {
     /// Opens (creating if needed) the ledger at `path` and brings its schema up to date.
     pub fn open(path: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
-        let conn = Connection::open(path).map_err(|source| LedgerError::Open { path: path.into(), source })?;
+        let conn =
+            Connection::open(path).map_err(|source| LedgerError::Open { path: path.into(), source })?;
         Self::setup(conn, path, utc_offset_minutes, true)
     }
 
@@ -186,11 +189,17 @@ impl Ledger {
     /// A ledger in memory (tests).
     pub fn open_in_memory(utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
         let path = Path::new(":memory:");
-        let conn = Connection::open_in_memory().map_err(|source| LedgerError::Open { path: path.into(), source })?;
+        let conn =
+            Connection::open_in_memory().map_err(|source| LedgerError::Open { path: path.into(), source })?;
         Self::setup(conn, path, utc_offset_minutes, true)
     }
 
-    fn setup(conn: Connection, path: &Path, utc_offset_minutes: i32, write: bool) -> Result<Ledger, LedgerError> {
+    fn setup(
+        conn: Connection,
+        path: &Path,
+        utc_offset_minutes: i32,
+        write: bool,
+    ) -> Result<Ledger, LedgerError> {
         let sql = |source| LedgerError::Sql { path: path.into(), source };
         conn.busy_timeout(std::time::Duration::from_secs(5)).map_err(sql)?;
         if write {
@@ -212,9 +221,14 @@ impl Ledger {
     }
 
     fn migrate(&mut self, write: bool) -> Result<(), LedgerError> {
-        let found: u32 = self.conn.pragma_query_value(None, "user_version", |r| r.get(0)).map_err(self.sql())?;
+        let found: u32 =
+            self.conn.pragma_query_value(None, "user_version", |r| r.get(0)).map_err(self.sql())?;
         if found > SCHEMA_VERSION {
-            return Err(LedgerError::SchemaTooNew { path: self.path.clone(), found, supported: SCHEMA_VERSION });
+            return Err(LedgerError::SchemaTooNew {
+                path: self.path.clone(),
+                found,
+                supported: SCHEMA_VERSION,
+            });
         }
         if !write {
             return Ok(());
@@ -245,24 +259,39 @@ impl Ledger {
         }
     }
 
+    /// The highest accepted version for `object`, if any.
+    pub fn accepted_version(&self, object: &str) -> Result<Option<u64>, LedgerError> {
+        self.conn
+            .query_row("SELECT version FROM accepted_version WHERE object = ?1", [object], |r| {
+                r.get::<_, i64>(0)
+            })
+            .optional()
+            .map(|v| v.map(|v| v as u64))
+            .map_err(self.sql())
+    }
+
     /// Refuses a bundle version below the highest accepted one for its object (or the same
     /// version with different content).
     pub fn check_version(&self, object: &str, version: u64, bundle_hash: &str) -> Result<(), LedgerError> {
         let row: Option<(i64, String)> = self
             .conn
-            .query_row(
-                "SELECT version, bundle_hash FROM accepted_version WHERE object = ?1",
-                [object],
-                |r| Ok((r.get(0)?, r.get(1)?)),
-            )
+            .query_row("SELECT version, bundle_hash FROM accepted_version WHERE object = ?1", [object], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })
             .optional()
             .map_err(self.sql())?;
         match row {
-            Some((accepted, _)) if (accepted as u64) > version => {
-                Err(LedgerError::Rollback { object: object.into(), offered: version, accepted: accepted as u64 })
-            }
+            Some((accepted, _)) if (accepted as u64) > version => Err(LedgerError::Rollback {
+                object: object.into(),
+                offered: version,
+                accepted: accepted as u64,
+            }),
             Some((accepted, hash)) if accepted as u64 == version && hash != bundle_hash => {
-                Err(LedgerError::SameVersionDifferentContent { object: object.into(), version, accepted_hash: hash })
+                Err(LedgerError::SameVersionDifferentContent {
+                    object: object.into(),
+                    version,
+                    accepted_hash: hash,
+                })
             }
             _ => Ok(()),
         }
@@ -340,7 +369,10 @@ impl Ledger {
     /// Records a notable event (load, refusal, fault) for `status`.
     pub fn log_event(&mut self, at_ms: i64, kind: &str, detail: &str) -> Result<(), LedgerError> {
         self.conn
-            .execute("INSERT INTO event (at_ms, kind, detail) VALUES (?1, ?2, ?3)", params![at_ms, kind, detail])
+            .execute(
+                "INSERT INTO event (at_ms, kind, detail) VALUES (?1, ?2, ?3)",
+                params![at_ms, kind, detail],
+            )
             .map_err(self.sql())?;
         Ok(())
     }
@@ -543,7 +575,9 @@ impl Accountant for Ledger {
     fn extend(&mut self, lease: LeaseId, until: i64) -> Result<(), Refusal> {
         let (lux, end): (f64, i64) = self
             .conn
-            .query_row("SELECT lux, end_ms FROM exposure WHERE id = ?1", [lease], |r| Ok((r.get(0)?, r.get(1)?)))
+            .query_row("SELECT lux, end_ms FROM exposure WHERE id = ?1", [lease], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })
             .map_err(|e| Refusal::Failed(format!("{}: lease {lease}: {e}", self.path.display())))?;
         if until <= end {
             return Ok(());
@@ -570,7 +604,13 @@ impl Accountant for Ledger {
         Ok(())
     }
 
-    fn record_showing(&mut self, started: i64, ended: i64, scenes: &[String], ended_by: &str) -> Result<(), Refusal> {
+    fn record_showing(
+        &mut self,
+        started: i64,
+        ended: i64,
+        scenes: &[String],
+        ended_by: &str,
+    ) -> Result<(), Refusal> {
         let object = self.active.as_ref().map(|(o, _)| o.clone()).unwrap_or_default();
         self.conn
             .execute(
@@ -690,7 +730,10 @@ mod tests {
         l.check_version("vase", 4, "bbb").unwrap();
         l.check_version("other", 1, "ccc").unwrap();
         assert!(matches!(l.check_version("vase", 2, "x"), Err(LedgerError::Rollback { accepted: 3, .. })));
-        assert!(matches!(l.check_version("vase", 3, "x"), Err(LedgerError::SameVersionDifferentContent { .. })));
+        assert!(matches!(
+            l.check_version("vase", 3, "x"),
+            Err(LedgerError::SameVersionDifferentContent { .. })
+        ));
         l.accept_version("vase", 5, "ddd", 1).unwrap();
         assert!(l.check_version("vase", 4, "bbb").is_err());
     }

@@ -3,6 +3,9 @@
 pub mod config;
 pub mod input;
 pub mod ledger;
+pub mod loader;
+pub mod notify;
 pub mod output;
 pub mod player;
+pub mod runtime;
 pub mod show;

@@ -8,7 +8,6 @@
 
 use std::sync::Arc;
 
-use crate::config::IdleMode;
 use crate::show::Show;
 
 /// The time, injected: a monotonic clock for timers and the wall clock for the ledger.
@@ -89,7 +88,11 @@ pub enum Look {
 pub enum Command {
     Show(Look),
     /// A cross-fade frame: `from` mixed towards `to` by `t` in linear light.
-    Fade { from: Look, to: Look, t: f32 },
+    Fade {
+        from: Look,
+        to: Look,
+        t: f32,
+    },
 }
 
 /// Why the ledger said no.
@@ -150,7 +153,6 @@ pub trait Accountant {
 /// Player timing (from the config) on top of the bundle's policy.
 #[derive(Clone, Debug)]
 pub struct PlayerSettings {
-    pub idle: IdleMode,
     pub fade_ms: u64,
     pub fade_fps: u32,
     pub min_press_interval_ms: u64,
@@ -302,7 +304,13 @@ impl Player {
             Event::Press => self.press(now, acct, &mut out),
             Event::Release => {}
             Event::Tick => {}
-            Event::Stop => self.go_dark(now, acct, &mut out, State::Dark { reason: "stopped by operator".into() }, "stop"),
+            Event::Stop => self.go_dark(
+                now,
+                acct,
+                &mut out,
+                State::Dark { reason: "stopped by operator".into() },
+                "stop",
+            ),
             Event::Fault(reason) => {
                 tracing::error!(%reason, "fault: outputs dark");
                 self.go_dark(now, acct, &mut out, State::Fault { reason }, "fault")
@@ -342,8 +350,12 @@ impl Player {
                 match self.switch_light(now, Look::Scene(scene), LightKind::Showing, acct, out) {
                     Ok(()) => {
                         tracing::info!(scene = %show.scenes[scene].id, "showing started");
-                        self.state =
-                            State::Showing { scene, started: now, scenes: vec![scene], last_change_ms: now.mono_ms };
+                        self.state = State::Showing {
+                            scene,
+                            started: now,
+                            scenes: vec![scene],
+                            last_change_ms: now.mono_ms,
+                        };
                     }
                     Err(r) => self.refused(now, r, acct, out),
                 }
@@ -359,7 +371,8 @@ impl Player {
                 match self.switch_light(now, Look::Scene(next), LightKind::Showing, acct, out) {
                     Ok(()) => {
                         scenes.push(next);
-                        self.state = State::Showing { scene: next, started, scenes, last_change_ms: now.mono_ms };
+                        self.state =
+                            State::Showing { scene: next, started, scenes, last_change_ms: now.mono_ms };
                     }
                     Err(r) => self.refused(now, r, acct, out),
                 }
@@ -412,7 +425,13 @@ impl Player {
         // The fade's light is bounded by the brighter of its ends; pay for that.
         let to = self.idle_look();
         let lux = self.look_lux(Look::Scene(from)).max(self.look_lux(to));
-        match self.reserve_and_commit(now, lux, LightKind::Fade, &format!("fade:{}", self.scene_id(from)), acct) {
+        match self.reserve_and_commit(
+            now,
+            lux,
+            LightKind::Fade,
+            &format!("fade:{}", self.scene_id(from)),
+            acct,
+        ) {
             Ok(()) => {
                 self.state = State::Ending { from, fade_start_ms: now.mono_ms, step: 0, steps };
             }
@@ -454,7 +473,14 @@ impl Player {
     }
 
     /// Outputs off at once, then the ledger is told (a failing ledger cannot keep light on).
-    fn go_dark(&mut self, now: Now, acct: &mut dyn Accountant, out: &mut Vec<Command>, state: State, why: &str) {
+    fn go_dark(
+        &mut self,
+        now: Now,
+        acct: &mut dyn Accountant,
+        out: &mut Vec<Command>,
+        state: State,
+        why: &str,
+    ) {
         if self.look != Look::Off || self.lease.is_some() {
             out.push(Command::Show(Look::Off));
             self.look = Look::Off;
@@ -537,13 +563,10 @@ impl Player {
     }
 
     fn idle_look(&self) -> Look {
-        match self.settings.idle {
-            IdleMode::Off => Look::Off,
-            IdleMode::Black => Look::Black,
-            IdleMode::Original => match self.show.as_ref().and_then(|s| s.original()) {
-                Some(i) => Look::Scene(i),
-                None => Look::Black,
-            },
+        match self.show.as_ref().map(|s| s.idle) {
+            Some(Look::Scene(i)) if i < self.show.as_ref().map_or(0, |s| s.scenes.len()) => Look::Scene(i),
+            Some(Look::Black) => Look::Black,
+            _ => Look::Off,
         }
     }
 

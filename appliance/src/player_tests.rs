@@ -7,6 +7,7 @@ use std::sync::Arc;
 use proptest::prelude::*;
 
 use super::*;
+use crate::config::IdleMode;
 use crate::show::{Policy, Response, Scene, SceneKind, Show};
 
 const MAX_SHOW: u64 = 30_000;
@@ -15,10 +16,10 @@ const FADE: u64 = 1_000;
 const RESERVE: u64 = 5_000;
 
 fn scene(id: &str, kind: SceneKind, lux: f64) -> Scene {
-    Scene { id: id.into(), name: id.into(), kind, frames: vec![vec![0; 4]], peak_lux: lux }
+    Scene { id: id.into(), name: id.into(), kind, peak_lux: lux }
 }
 
-fn show() -> Arc<Show> {
+fn show(idle: IdleMode) -> Arc<Show> {
     Arc::new(Show {
         object_id: "vase".into(),
         version: 1,
@@ -39,12 +40,17 @@ fn show() -> Arc<Show> {
             annual_lux_hours: 1e9,
             warn_at: vec![0.75, 0.9],
         },
+        idle: match idle {
+            IdleMode::Off => Look::Off,
+            IdleMode::Black => Look::Black,
+            IdleMode::Original => Look::Scene(0),
+        },
+        expires_unix_ms: None,
     })
 }
 
-fn settings(idle: IdleMode) -> PlayerSettings {
+fn settings() -> PlayerSettings {
     PlayerSettings {
-        idle,
         fade_ms: FADE,
         fade_fps: 10,
         min_press_interval_ms: 300,
@@ -91,7 +97,14 @@ impl Books {
 }
 
 impl Accountant for Books {
-    fn reserve(&mut self, _: LightKind, _: &str, lux: f64, from: i64, until: i64) -> Result<LeaseId, Refusal> {
+    fn reserve(
+        &mut self,
+        _: LightKind,
+        _: &str,
+        lux: f64,
+        from: i64,
+        until: i64,
+    ) -> Result<LeaseId, Refusal> {
         self.check(lux * (until - from) as f64)?;
         self.next += 1;
         self.leases.insert(self.next, Lease { lux, start: from, end: until });
@@ -119,6 +132,7 @@ impl Accountant for Books {
 
 /// The player, its books, a fake clock and the light timeline the outputs produced.
 struct Sim {
+    idle: IdleMode,
     p: Player,
     books: Books,
     now: Now,
@@ -130,18 +144,19 @@ struct Sim {
 impl Sim {
     fn new(idle: IdleMode, budget_lux_hours: f64) -> Sim {
         let mut sim = Sim {
-            p: Player::new(settings(idle)),
+            idle,
+            p: Player::new(settings()),
             books: Books::with_budget(budget_lux_hours),
             now: Now { mono_ms: 1_000, unix_ms: 1_700_000_000_000 },
             light: vec![(1_700_000_000_000, 0.0)],
             commands: Vec::new(),
         };
-        sim.event(Event::Load(show()));
+        sim.event(Event::Load(show(idle)));
         sim
     }
 
     fn lux(&self, look: Look) -> f64 {
-        let s = show();
+        let s = show(self.idle);
         match look {
             Look::Scene(i) => s.scenes[i].peak_lux,
             Look::Black => s.black_lux,
@@ -208,12 +223,22 @@ impl Sim {
                 continue;
             }
             for &p in points.iter().filter(|&&p| p >= t && p < end) {
-                let paid: f64 =
-                    self.books.leases.values().filter(|l| l.start <= p && p < l.end).map(|l| l.lux).fold(0.0, f64::max);
+                let paid: f64 = self
+                    .books
+                    .leases
+                    .values()
+                    .filter(|l| l.start <= p && p < l.end)
+                    .map(|l| l.lux)
+                    .fold(0.0, f64::max);
                 assert!(paid >= lux, "at {p}: light {lux} lx, leases pay {paid} lx");
             }
         }
-        assert!(self.books.used() + 1e-6 >= true_exposure, "books {} < true {}", self.books.used(), true_exposure);
+        assert!(
+            self.books.used() + 1e-6 >= true_exposure,
+            "books {} < true {}",
+            self.books.used(),
+            true_exposure
+        );
     }
 
     /// Longest continuous lit stretch of restoration light (lux above the idle look's).
@@ -328,7 +353,11 @@ fn press_during_cooldown_and_fade_is_ignored() {
     s.event(Event::Press);
     assert_eq!(s.state(), "cooldown");
     assert_eq!(s.p.look(), Look::Black);
-    assert!(s.commands[before..].iter().all(|(_, c)| *c == Command::Show(Look::Black) || matches!(c, Command::Show(Look::Black))));
+    assert!(
+        s.commands[before..]
+            .iter()
+            .all(|(_, c)| *c == Command::Show(Look::Black) || matches!(c, Command::Show(Look::Black)))
+    );
     s.advance(1_000);
     assert_eq!(s.state(), "idle");
     s.event(Event::Press);
@@ -380,7 +409,7 @@ fn fault_mid_fade_goes_dark_at_once_and_stays_dark() {
     assert_eq!(s.commands.len(), n, "no light after a fault");
     assert!(s.p.next_deadline().is_none());
     // A reload brings it back.
-    s.event(Event::Load(show()));
+    s.event(Event::Load(show(s.idle)));
     assert_eq!(s.state(), "idle");
     s.verify_invariants();
 }
@@ -416,7 +445,7 @@ fn stop_goes_dark_and_load_returns_to_idle() {
     assert_eq!(s.books.showings.last().unwrap().2, "stop");
     s.event(Event::Unload("bundle refused".into()));
     assert_eq!(s.state(), "dark");
-    s.event(Event::Load(show()));
+    s.event(Event::Load(show(s.idle)));
     assert_eq!(s.state(), "idle");
     s.verify_invariants();
 }
@@ -452,7 +481,7 @@ fn config_can_shorten_the_showing_and_lengthen_the_cooldown() {
 
 #[test]
 fn no_bundle_means_dark() {
-    let mut p = Player::new(settings(IdleMode::Original));
+    let mut p = Player::new(settings());
     let mut b = Books::with_budget(1e9);
     let now = Now { mono_ms: 0, unix_ms: 0 };
     assert!(p.handle(now, Event::Press, &mut b).is_empty());
@@ -498,7 +527,7 @@ proptest! {
                 Op::Wait(ms) => s.advance(ms),
                 Op::Fault => s.event(Event::Fault("test".into())),
                 Op::Stop => s.event(Event::Stop),
-                Op::Load => s.event(Event::Load(show())),
+                Op::Load => s.event(Event::Load(show(idle))),
                 Op::Shrink => s.books.budget_lux_ms = s.books.used() + 50.0 * 3_000.0,
             }
             if matches!(s.p.state(), State::Fault { .. } | State::Dark { .. } | State::Exhausted { .. }) {
@@ -511,4 +540,3 @@ proptest! {
         prop_assert!(s.books.used() <= s.books.budget_lux_ms + 1e-6);
     }
 }
-

@@ -1,8 +1,9 @@
-//! A verified bundle as the player holds it in memory: scenes with their frames and peak lux,
+//! A verified bundle as the player holds it: scenes with their peak lux (frames stay in the
+//! loader's store),
 //! the projector responses (for cross-fades in linear light) and the exposure policy.
 //! Only `loader` builds one, after every check passed.
 
-use crate::output::FrameRef;
+use crate::player::Look;
 
 /// What a scene is for (the bundle manifest's scene kind).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -21,8 +22,6 @@ pub struct Scene {
     pub id: String,
     pub name: String,
     pub kind: SceneKind,
-    /// XRGB8888 frames (see `output::FrameRef`), one per projector.
-    pub frames: Vec<Vec<u8>>,
     /// Peak illuminance on the object in lux, recomputed by the appliance from the light
     /// certificate (not taken from the manifest).
     pub peak_lux: f64,
@@ -83,6 +82,10 @@ pub struct Show {
     /// One per projector.
     pub responses: Vec<Response>,
     pub policy: Policy,
+    /// What the projectors show between showings (the policy's, or a darker configured one).
+    pub idle: Look,
+    /// When the bundle stops being valid (Unix ms), if ever.
+    pub expires_unix_ms: Option<i64>,
 }
 
 impl Show {
@@ -95,16 +98,6 @@ impl Show {
     pub fn cycle(&self) -> Vec<usize> {
         let of = |k| self.scenes.iter().enumerate().filter(move |(_, s)| s.kind == k).map(|(i, _)| i);
         of(SceneKind::Restoration).chain(of(SceneKind::Relit)).collect()
-    }
-
-    /// Frames of scene `i` as output references.
-    pub fn frames(&self, i: usize) -> Vec<FrameRef<'_>> {
-        self.scenes[i]
-            .frames
-            .iter()
-            .zip(&self.projectors)
-            .map(|(f, &(width, height))| FrameRef { width, height, xrgb: f })
-            .collect()
     }
 }
 

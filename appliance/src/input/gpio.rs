@@ -15,7 +15,8 @@ pub fn start(config: &GpioConfig, tx: InputSender) -> Result<InputPin, rppal::gp
     let active_low = config.active_low;
     pin.set_async_interrupt(Trigger::Both, Some(Duration::from_millis(config.debounce_ms)), move |event| {
         let down = matches!(event.trigger, Trigger::FallingEdge) == active_low;
-        let ev = if down { InputEvent::Press { source: "gpio" } } else { InputEvent::Release { source: "gpio" } };
+        let ev =
+            if down { InputEvent::Press { source: "gpio" } } else { InputEvent::Release { source: "gpio" } };
         send_button(&tx, ev);
     })?;
     tracing::info!(pin = config.pin, "GPIO button ready");

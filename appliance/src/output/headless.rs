@@ -68,7 +68,9 @@ impl Output for HeadlessOutput {
             let path = self.dir.join("frames").join(&name);
             if !path.exists() {
                 let tmp = self.dir.join("frames").join(format!(".{name}.tmp"));
-                std::fs::write(&tmp, f.xrgb).and_then(|_| std::fs::rename(&tmp, &path)).map_err(|e| self.err(e))?;
+                std::fs::write(&tmp, f.xrgb)
+                    .and_then(|_| std::fs::rename(&tmp, &path))
+                    .map_err(|e| self.err(e))?;
             }
             line.push('\t');
             line.push_str(&name);
@@ -115,7 +117,8 @@ mod tests {
         o.set_modes(&[(2, 1), (1, 1)]).unwrap();
         let a = [1u8, 2, 3, 0, 4, 5, 6, 0];
         let b = [9u8, 9, 9, 0];
-        o.show(&[FrameRef { width: 2, height: 1, xrgb: &a }, FrameRef { width: 1, height: 1, xrgb: &b }]).unwrap();
+        o.show(&[FrameRef { width: 2, height: 1, xrgb: &a }, FrameRef { width: 1, height: 1, xrgb: &b }])
+            .unwrap();
         o.blank().unwrap();
         let log = read_log(dir.path()).unwrap();
         assert_eq!(log.len(), 2);

@@ -57,7 +57,9 @@ pub fn check_frames(
     }
     for (index, f) in frames.iter().enumerate() {
         let (want_w, want_h) = sizes.and_then(|s| s.get(index).copied()).unwrap_or((f.width, f.height));
-        if (f.width, f.height) != (want_w, want_h) || f.xrgb.len() != (f.width as usize) * (f.height as usize) * 4 {
+        if (f.width, f.height) != (want_w, want_h)
+            || f.xrgb.len() != (f.width as usize) * (f.height as usize) * 4
+        {
             return Err(OutputError::FrameSize { index, got_w: f.width, got_h: f.height, want_w, want_h });
         }
     }

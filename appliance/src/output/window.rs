@@ -63,9 +63,10 @@ impl WindowOutput {
     }
 
     fn send(&self, e: UserEvent) -> Result<(), OutputError> {
-        self.proxy
-            .send_event(e)
-            .map_err(|_| OutputError::Device { output: "window".into(), problem: "the window was closed".into() })
+        self.proxy.send_event(e).map_err(|_| OutputError::Device {
+            output: "window".into(),
+            problem: "the window was closed".into(),
+        })
     }
 }
 
@@ -129,8 +130,7 @@ impl App {
                 for x in 0..dw.min(cell) {
                     let sx = (x as f64 / scale) as usize;
                     let i = (sy.min(fh - 1) * fw + sx.min(fw - 1)) * 4;
-                    buffer[y * w + k * cell + x] =
-                        u32::from_le_bytes([px[i], px[i + 1], px[i + 2], 0]);
+                    buffer[y * w + k * cell + x] = u32::from_le_bytes([px[i], px[i + 1], px[i + 2], 0]);
                 }
             }
         }
@@ -181,8 +181,12 @@ impl ApplicationHandler<UserEvent> for App {
             WindowEvent::RedrawRequested => self.redraw(),
             WindowEvent::KeyboardInput { event, .. } if event.logical_key == Key::Named(NamedKey::Space) => {
                 match (event.state, event.repeat) {
-                    (ElementState::Pressed, false) => send_button(&self.inputs, InputEvent::Press { source: "window" }),
-                    (ElementState::Released, _) => send_button(&self.inputs, InputEvent::Release { source: "window" }),
+                    (ElementState::Pressed, false) => {
+                        send_button(&self.inputs, InputEvent::Press { source: "window" })
+                    }
+                    (ElementState::Released, _) => {
+                        send_button(&self.inputs, InputEvent::Release { source: "window" })
+                    }
                     _ => {}
                 }
             }
