@@ -42,6 +42,14 @@ enum Command {
         #[arg(long)]
         config: PathBuf,
     },
+    /// Verify a bundle (signature, validity, every section, every scene's light bound) with
+    /// the same code the player loads bundles with.
+    Verify {
+        bundle: PathBuf,
+        /// Directory of trusted public keys (*.pem, SPKI).
+        #[arg(long)]
+        trust: PathBuf,
+    },
 }
 
 fn main() -> Result<()> {
@@ -53,7 +61,21 @@ fn main() -> Result<()> {
         Command::Run { config } => run(&config),
         Command::Status { config, json } => status(&config, json),
         Command::Install { bundle, config } => install(&bundle, &config),
+        Command::Verify { bundle, trust } => verify(&bundle, &trust),
     }
+}
+
+fn verify(bundle: &Path, trust: &Path) -> Result<()> {
+    use restage_shared::bundle::{VerifyOptions, describe, verify_file};
+    // The one time of this load, taken before anything is read.
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .context("the system clock is before 1970")?
+        .as_secs() as i64;
+    let v = verify_file(bundle, trust, &VerifyOptions::at(now))?;
+    print!("{}", describe(&v.manifest, Some(&v.peaks)));
+    println!("OK: signature verified with key {}", v.key_id);
+    Ok(())
 }
 
 fn run(config: &Path) -> Result<()> {
