@@ -50,7 +50,7 @@ fn damaged(x: u32, y: u32) -> u8 {
     let band = (16..30).contains(&y) || (46..60).contains(&y);
     let chip =
         (30..36).contains(&x) && (16..20).contains(&y) || (70..73).contains(&x) && (50..53).contains(&y);
-    let speck = (x * 31 + y * 17) % 97 == 0;
+    let speck = (x * 31 + y * 17).is_multiple_of(97);
     u8::from(band != (chip || speck))
 }
 
