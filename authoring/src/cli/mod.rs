@@ -9,6 +9,7 @@ pub mod decode;
 pub mod eval;
 pub mod inspect;
 pub mod keygen;
+pub mod restore;
 pub mod verify;
 
 /// The one time taken at the start of a command (Unix seconds).
