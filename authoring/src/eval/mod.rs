@@ -3,6 +3,8 @@
 
 use serde::Serialize;
 
+pub mod transport;
+
 /// One measured figure, with the target it is held to (if any).
 #[derive(Clone, Debug, Serialize)]
 pub struct Metric {
