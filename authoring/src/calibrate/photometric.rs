@@ -502,3 +502,122 @@ pub fn fit_vignetting(
     }
     coeffs.into_iter().map(Some).collect()
 }
+
+/// Draws a line into `img` (clipped), for the plots below.
+fn line(img: &mut image::RgbImage, a: (f64, f64), b: (f64, f64), colour: [u8; 3]) {
+    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
+    for s in 0..=steps {
+        let t = s as f64 / steps as f64;
+        let (x, y) = ((a.0 + (b.0 - a.0) * t).round(), (a.1 + (b.1 - a.1) * t).round());
+        if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
+            img.put_pixel(x as u32, y as u32, image::Rgb(colour));
+        }
+    }
+}
+
+/// A projector's response curves (red, green, blue) over input level 0..255 (x) and relative
+/// output 0..1 (y), gridlines every 32 levels and 0.1, measured levels as squares.
+pub fn response_plot(rad: &ProjectorRadiometry) -> image::RgbImage {
+    let (w, h, m) = (560u32, 420u32, 30.0f64);
+    let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255; 3]));
+    let (pw, ph) = (w as f64 - 2.0 * m, h as f64 - 2.0 * m);
+    let at = |level: f64, out: f64| (m + pw * level / 255.0, h as f64 - m - ph * out);
+    for l in (0..=256).step_by(32) {
+        let l = (l as f64).min(255.0);
+        line(&mut img, at(l, 0.0), at(l, 1.0), [225; 3]);
+    }
+    for i in 0..=10 {
+        line(&mut img, at(0.0, i as f64 / 10.0), at(255.0, i as f64 / 10.0), [225; 3]);
+    }
+    line(&mut img, at(0.0, 0.0), at(255.0, 0.0), [0; 3]);
+    line(&mut img, at(0.0, 0.0), at(0.0, 1.0), [0; 3]);
+    let colours = [[200, 30, 30], [20, 150, 40], [30, 60, 210]];
+    for (c, &colour) in colours.iter().enumerate() {
+        let r = &rad.response[c];
+        for v in 1..r.len() {
+            line(&mut img, at(v as f64 - 1.0, r[v - 1] as f64), at(v as f64, r[v] as f64), colour);
+        }
+        for &(l, o) in &rad.measured[c] {
+            let (x, y) = at(l as f64, o as f64);
+            let corners = [(x - 3.0, y - 3.0), (x + 3.0, y - 3.0), (x + 3.0, y + 3.0), (x - 3.0, y + 3.0)];
+            for e in 0..4 {
+                line(&mut img, corners[e], corners[(e + 1) % 4], colour);
+            }
+        }
+    }
+    img
+}
+
+/// Footprint size per projector pixel as a false-colour image (dark blue small, yellow at twice
+/// the median), black where no dot was measured.
+pub fn footprint_map(footprint: &[f32], width: u32, height: u32) -> image::RgbImage {
+    let mut vals: Vec<f32> = footprint.iter().copied().filter(|v| v.is_finite()).collect();
+    let scale = if vals.is_empty() {
+        1.0
+    } else {
+        let mid = vals.len() / 2;
+        2.0 * *vals.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    image::RgbImage::from_fn(width, height, |x, y| {
+        let v = footprint[(y * width + x) as usize];
+        if !v.is_finite() {
+            return image::Rgb([0; 3]);
+        }
+        let t = (v / scale.max(1e-6)).clamp(0.0, 1.0);
+        // Blue -> teal -> yellow.
+        let (r, g, b) = if t < 0.5 {
+            let s = t * 2.0;
+            (30.0 + 10.0 * s, 40.0 + 140.0 * s, 140.0 + 10.0 * s)
+        } else {
+            let s = (t - 0.5) * 2.0;
+            (40.0 + 210.0 * s, 180.0 + 50.0 * s, 150.0 - 120.0 * s)
+        };
+        image::Rgb([r as u8, g as u8, b as u8])
+    })
+}
+
+impl PhotometricReport {
+    /// Writes the figures people look at into `dir`: `response_proj<k>.png`,
+    /// `footprint_proj<k>.png` and `photometric.json` (counts, coverage, leakage, vignetting,
+    /// lux, warnings).
+    pub fn save(&self, dir: &Path, projector_sizes: &[(u32, u32)]) -> Result<(), ImageError> {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| ImageError::Write { path: dir.into(), source: image::ImageError::IoError(e) })?;
+        for (k, rad) in self.radiometry.iter().enumerate() {
+            let path = dir.join(format!("response_proj{k}.png"));
+            response_plot(rad).save(&path).map_err(|source| ImageError::Write { path, source })?;
+        }
+        for (k, (t, &(w, h))) in self.transport.iter().zip(projector_sizes).enumerate() {
+            if t.footprint.len() == (w * h) as usize {
+                let path = dir.join(format!("footprint_proj{k}.png"));
+                footprint_map(&t.footprint, w, h)
+                    .save(&path)
+                    .map_err(|source| ImageError::Write { path, source })?;
+            }
+        }
+        let summary = serde_json::json!({
+            "projectors": self.transport.iter().enumerate().map(|(k, t)| serde_json::json!({
+                "projector": k,
+                "dot_spacing": t.spacing,
+                "dots_snapped": t.dots,
+                "dots_predicted": t.predicted,
+                "dots_off_object": t.off_object,
+                "coverage_of_lit_pixels": t.coverage,
+                "correspondences_refined": t.refine.refined,
+                "correspondences_disagreeing": t.refine.disagreed,
+                "refine_median_shift_px": t.refine.median_shift,
+                "leakage": self.radiometry.get(k).map(|r| r.leakage),
+                "vignetting_coefficient": self.vignetting.get(k).copied().flatten(),
+                "lux": self.lux.iter().find(|l| l.projector == k).map(|l| serde_json::json!({
+                    "reading": l.reading, "reference_pixel": l.reference_pixel,
+                    "distance_mm": l.distance_mm, "lux_at_1m": l.lux_at_1m,
+                })),
+            })).collect::<Vec<_>>(),
+            "stray_lux": self.stray_lux,
+            "warnings": self.warnings,
+        });
+        let path = dir.join("photometric.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("summary serialises"))
+            .map_err(|e| ImageError::Write { path, source: image::ImageError::IoError(e) })
+    }
+}
