@@ -5,6 +5,7 @@ pub mod calibrate;
 pub mod capture_set;
 pub mod classify;
 pub mod color;
+pub mod compensate;
 pub mod eval;
 pub mod imgio;
 pub mod stage_model;

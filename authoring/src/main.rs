@@ -13,10 +13,11 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// One frame per projector for a restored image, under the light bound (paper §5.1).
+    Compensate(cli::compensate::Args),
+}
 
-// The allow goes when the first subcommand lands (an empty enum makes main unreachable).
-#[allow(unreachable_code)]
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -25,5 +26,7 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {}
+    match Cli::parse().command {
+        Command::Compensate(a) => cli::compensate::run(a),
+    }
 }

@@ -1,2 +1,4 @@
 //! The `restage-author` subcommands: argument parsing, progress, and file I/O around the
 //! library's steps. One file per command.
+
+pub mod compensate;
