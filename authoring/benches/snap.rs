@@ -2,7 +2,9 @@
 //! a 16-pixel dot grid from a 1400x1050 projector, the per-image work of the transport step.
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
-use restage_authoring::calibrate::transport::{Predictor, SnapContext, SnapParams, snap_blob, snap_dot_image};
+use restage_authoring::calibrate::transport::{
+    Predictor, SnapContext, SnapParams, snap_blob, snap_dot_image,
+};
 use restage_authoring::imgio::LinearImage;
 
 const CAM: (u32, u32) = (1600, 1200);
@@ -35,9 +37,8 @@ fn scene(dx: u32, dy: u32) -> (LinearImage, SnapContext, Predictor) {
     let mut white = LinearImage::new(w, h).unwrap();
     white.data.iter_mut().for_each(|p| *p = [0.4, 0.36, 0.32]);
     let ctx = SnapContext::new(&black, &white, 0.001, &SnapParams::default());
-    let corr: Vec<[f32; 2]> = (0..w * h)
-        .map(|i| [((i % w) as f32 - 10.3) / SCALE, ((i / w) as f32 - 12.7) / SCALE])
-        .collect();
+    let corr: Vec<[f32; 2]> =
+        (0..w * h).map(|i| [((i % w) as f32 - 10.3) / SCALE, ((i / w) as f32 - 12.7) / SCALE]).collect();
     let pred = Predictor::new(&corr, w, PROJ.0, PROJ.1);
     (img, ctx, pred)
 }
