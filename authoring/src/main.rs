@@ -14,8 +14,18 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Classify a photo's pixels into the picked paint colours (paper §4.1).
+    Classify(cli::classify::ClassifyArgs),
     /// One frame per projector for a restored image, under the light bound (paper §5.1).
     Compensate(cli::compensate::Args),
+    /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
+    Keygen(cli::keygen::KeygenArgs),
+    /// Sign compensation's frames and light certificate into a bundle.
+    Bundle(cli::bundle::BundleArgs),
+    /// Summarise a bundle: scenes, projectors, policy, peak lux, hashes.
+    Inspect(cli::inspect::InspectArgs),
+    /// Verify a bundle exactly as the appliance does.
+    Verify(cli::verify::VerifyArgs),
 }
 
 fn main() -> Result<()> {
@@ -27,6 +37,11 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Classify(args) => cli::classify::run(&args),
         Command::Compensate(a) => cli::compensate::run(a),
+        Command::Keygen(a) => cli::keygen::run(&a),
+        Command::Bundle(a) => cli::bundle::run(&a),
+        Command::Inspect(a) => cli::inspect::run(&a),
+        Command::Verify(a) => cli::verify::run(&a),
     }
 }
