@@ -5,6 +5,7 @@
 pub mod decode;
 pub mod geometry;
 pub mod lux;
+pub mod photometric;
 pub mod ply;
 pub mod radiometry;
 pub mod report;

@@ -6,6 +6,8 @@ pub mod geometry;
 
 use serde::Serialize;
 
+pub mod transport;
+
 /// One measured figure, with the target it is held to (if any).
 #[derive(Clone, Debug, Serialize)]
 pub struct Metric {
