@@ -13,10 +13,15 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Simulate a built-in scene on the virtual stage and write its capture set.
+    Simulate(cli::simulate::Args),
+    /// Run the whole chain on the virtual stage (the README's first command).
+    Demo(cli::demo::Args),
+    /// Render what the camera sees when the projectors show given frames (true physics).
+    Render(cli::render::Args),
+}
 
-// The allow goes when the first subcommand lands (an empty enum makes main unreachable).
-#[allow(unreachable_code)]
 fn main() -> Result<()> {
     tracing_subscriber::fmt()
         .with_env_filter(
@@ -25,5 +30,9 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {}
+    match Cli::parse().command {
+        Command::Simulate(args) => cli::simulate::run(&args),
+        Command::Demo(args) => cli::demo::run(&args),
+        Command::Render(args) => cli::render::run(&args),
+    }
 }

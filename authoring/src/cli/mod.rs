@@ -1,2 +1,6 @@
 //! The `restage-author` subcommands: argument parsing, progress, and file I/O around the
 //! library's steps. One file per command.
+
+pub mod demo;
+pub mod render;
+pub mod simulate;
