@@ -2,7 +2,11 @@
 //! (see ARCHITECTURE.md). Each step is a pure function of files in and files out.
 
 pub mod acquire;
+pub mod calibrate;
 pub mod capture_set;
+pub mod classify;
+pub mod color;
+pub mod compensate;
 pub mod contact_sheet;
 pub mod eval;
 pub mod hw;

@@ -20,6 +20,8 @@ enum Command {
     Demo(cli::demo::Args),
     /// Render what the camera sees when the projectors show given frames (true physics).
     Render(cli::render::Args),
+    /// One frame per projector for a restored image, under the light bound (paper §5.1).
+    Compensate(cli::compensate::Args),
 }
 
 fn main() -> Result<()> {
@@ -34,5 +36,6 @@ fn main() -> Result<()> {
         Command::Simulate(args) => cli::simulate::run(&args),
         Command::Demo(args) => cli::demo::run(&args),
         Command::Render(args) => cli::render::run(&args),
+        Command::Compensate(a) => cli::compensate::run(a),
     }
 }

@@ -63,6 +63,10 @@ pub struct ProjectorModel {
 
 /// Sparse light transport of one projector: for each projector pixel, the camera pixels its
 /// light reaches and the weights (compressed sparse rows over projector pixels).
+///
+/// `weight` for projector pixel q at camera pixel p is q's share of p's full-white irradiance
+/// from this projector (`(dot - black) / (white - black)`), so the weights of all q at one
+/// camera pixel sum to about 1 and a row's sum is q's footprint in camera pixels' worth of light.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Transport {
     /// `width * height + 1` offsets into `camera_pixel` / `weight`; empty if not measured.

@@ -1,0 +1,906 @@
+//! Dot-grid light transport (paper §5.2): each projector shows single-pixel dots on a grid of
+//! spacing S, shifted over S x S positions; every dot is searched near the camera position the
+//! structured-light correspondence predicts and snapped to its blob's weighted centre. The
+//! blobs become the projector's sparse [`Transport`], and the snapped centres refine the
+//! correspondences.
+//!
+//! Weights follow the [`Transport`] contract: `weight[q][p]` is the share of camera pixel p's
+//! full-white irradiance from this projector that projector pixel q delivers, measured as
+//! `(dot - black) / (white - black)` summed over colour channels, so albedo cancels.
+
+use std::collections::HashMap;
+
+use rayon::prelude::*;
+use thiserror::Error;
+
+use crate::imgio::LinearImage;
+use crate::stage_model::Transport;
+
+/// A camera value at or above this (in any channel) counts as saturated.
+pub const SATURATED: f32 = 0.999;
+
+#[derive(Debug, Error)]
+pub enum TransportError {
+    #[error("projector {projector}: {what} is {got_w}x{got_h}, expected {want_w}x{want_h}")]
+    Size { projector: usize, what: String, got_w: u32, got_h: u32, want_w: u32, want_h: u32 },
+    #[error("projector {projector}: dot spacing {spacing} is invalid (expected 2..=64)")]
+    Spacing { projector: usize, spacing: u32 },
+    #[error("projector {projector}: dot image {image} has shift ({dx}, {dy}) outside 0..{spacing}")]
+    Shift { projector: usize, image: String, dx: u32, dy: u32, spacing: u32 },
+    #[error("projector {projector}: the dot shift ({dx}, {dy}) appears twice ({first} and {second})")]
+    DuplicateShift { projector: usize, dx: u32, dy: u32, first: String, second: String },
+    #[error(
+        "projector {projector}: no valid structured-light correspondence; light transport needs the \
+         geometry step first"
+    )]
+    NoCorrespondence { projector: usize },
+    #[error(
+        "projector {projector}: the white image {white} is saturated on {percent:.1} % of the lit pixels \
+         (expected < 50 %); lower the camera exposure"
+    )]
+    WhiteSaturated { projector: usize, white: String, percent: f64 },
+}
+
+/// Tuning of the blob search; the defaults suit 16-bit captures with a blur of a pixel or two.
+#[derive(Clone, Debug)]
+pub struct SnapParams {
+    /// Detection threshold on the blob peak, in noise standard deviations.
+    pub detect_sigmas: f32,
+    /// Pixels belong to a blob above this many noise standard deviations.
+    pub member_sigmas: f32,
+    /// Largest search radius in camera pixels.
+    pub max_radius: u32,
+    /// Smallest useful `white - black` (channel sum) relative to the noise, below which a pixel's
+    /// share of light cannot be measured.
+    pub lit_sigmas: f32,
+    /// Refined correspondences further than this (projector px) from the decoded ones are
+    /// treated as disagreements and not applied.
+    pub max_refine_shift: f32,
+}
+
+impl Default for SnapParams {
+    fn default() -> Self {
+        Self {
+            detect_sigmas: 8.0,
+            member_sigmas: 3.0,
+            max_radius: 24,
+            lit_sigmas: 10.0,
+            max_refine_shift: 2.0,
+        }
+    }
+}
+
+/// Predicts where a projector pixel lands in the camera from the decoded correspondences:
+/// the mean camera position of the camera pixels whose correspondence rounds near it.
+#[derive(Clone, Debug)]
+pub struct Predictor {
+    proj_width: u32,
+    proj_height: u32,
+    /// Per projector pixel: sum of camera x, sum of camera y, count.
+    acc: Vec<[f32; 3]>,
+}
+
+impl Predictor {
+    pub fn new(correspondence: &[[f32; 2]], cam_width: u32, proj_width: u32, proj_height: u32) -> Self {
+        let mut acc = vec![[0.0f32; 3]; proj_width as usize * proj_height as usize];
+        for (i, c) in correspondence.iter().enumerate() {
+            if !(c[0].is_finite() && c[1].is_finite()) {
+                continue;
+            }
+            let (qx, qy) = (c[0].round(), c[1].round());
+            if qx < 0.0 || qy < 0.0 || qx >= proj_width as f32 || qy >= proj_height as f32 {
+                continue;
+            }
+            let a = &mut acc[qy as usize * proj_width as usize + qx as usize];
+            a[0] += (i as u32 % cam_width) as f32;
+            a[1] += (i as u32 / cam_width) as f32;
+            a[2] += 1.0;
+        }
+        Self { proj_width, proj_height, acc }
+    }
+
+    /// Camera position of projector pixel (qx, qy), or `None` when no camera pixel sees it
+    /// (the dot falls off the object or into a shadow).
+    pub fn predict(&self, qx: u32, qy: u32) -> Option<[f32; 2]> {
+        let mut s = [0.0f32; 3];
+        let (x0, x1) = (qx.saturating_sub(1), (qx + 1).min(self.proj_width - 1));
+        let (y0, y1) = (qy.saturating_sub(1), (qy + 1).min(self.proj_height - 1));
+        for y in y0..=y1 {
+            for x in x0..=x1 {
+                let a = self.acc[y as usize * self.proj_width as usize + x as usize];
+                s[0] += a[0];
+                s[1] += a[1];
+                s[2] += a[2];
+            }
+        }
+        (s[2] > 0.0).then(|| [s[0] / s[2], s[1] / s[2]])
+    }
+}
+
+/// One snapped blob.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Blob {
+    /// Weighted centre, camera pixel coordinates (integers at pixel centres).
+    pub centre: [f32; 2],
+    /// Sum of the weights (camera pixels' worth of full-white light).
+    pub energy: f32,
+    /// Camera pixel indices and weights.
+    pub pixels: Vec<(u32, f32)>,
+    /// Some blob pixel reached [`SATURATED`].
+    pub saturated: bool,
+}
+
+/// Why a dot with a prediction yielded no blob.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SnapMiss {
+    /// Nothing above the detection threshold near the prediction.
+    NotFound,
+    /// The blob runs into the search window's edge (neighbours merge, or it is smeared).
+    Truncated,
+}
+
+/// Per camera pixel data fixed for one projector: black and `white - black`, channel sums.
+#[derive(Clone, Debug)]
+pub struct SnapContext {
+    pub width: u32,
+    pub height: u32,
+    pub black: Vec<f32>,
+    pub lit: Vec<f32>,
+    /// Smallest `lit` at which a pixel's share of light is measured.
+    pub lit_min: f32,
+}
+
+impl SnapContext {
+    pub fn new(black: &LinearImage, white: &LinearImage, noise_sigma: f32, params: &SnapParams) -> Self {
+        let black_sum: Vec<f32> = black.data.iter().map(|p| p[0] + p[1] + p[2]).collect();
+        let lit = white.data.iter().zip(&black_sum).map(|(w, b)| w[0] + w[1] + w[2] - b).collect();
+        Self {
+            width: black.width,
+            height: black.height,
+            black: black_sum,
+            lit,
+            lit_min: (params.lit_sigmas * noise_sigma).max(1e-3),
+        }
+    }
+}
+
+/// Noise standard deviation of a (mostly dark) dot image against black, channel sums, from
+/// the median absolute deviation of a strided sample (robust to the few bright dots).
+pub fn noise_sigma(image: &LinearImage, ctx: &SnapContext) -> f32 {
+    let mut sample: Vec<f32> =
+        image.data.iter().zip(&ctx.black).step_by(7).map(|(p, b)| p[0] + p[1] + p[2] - b).collect();
+    if sample.is_empty() {
+        return 0.0;
+    }
+    let mid = sample.len() / 2;
+    let median = *sample.select_nth_unstable_by(mid, f32::total_cmp).1;
+    for s in &mut sample {
+        *s = (*s - median).abs();
+    }
+    1.4826 * *sample.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// Snaps to the blob nearest `guess`: finds the brightest pixel within `radius`, grows the
+/// connected region above `member` around it (inside a window of `radius` centred on the peak)
+/// and returns its weighted centre and footprint. `detect` is the smallest accepted peak
+/// (channel sum above black).
+pub fn snap_blob(
+    image: &LinearImage,
+    ctx: &SnapContext,
+    guess: [f32; 2],
+    radius: u32,
+    detect: f32,
+    member: f32,
+) -> Result<Blob, SnapMiss> {
+    let (w, h) = (ctx.width as i64, ctx.height as i64);
+    let r = radius as i64;
+    let signal = |x: i64, y: i64| -> f32 {
+        let i = (y * w + x) as usize;
+        let p = image.data[i];
+        p[0] + p[1] + p[2] - ctx.black[i]
+    };
+    let (gx, gy) = (guess[0].round() as i64, guess[1].round() as i64);
+    let mut best = (f32::NEG_INFINITY, 0i64, 0i64);
+    for y in (gy - r).max(0)..=(gy + r).min(h - 1) {
+        for x in (gx - r).max(0)..=(gx + r).min(w - 1) {
+            let s = signal(x, y);
+            if s > best.0 {
+                best = (s, x, y);
+            }
+        }
+    }
+    let (peak, px, py) = best;
+    if peak.is_nan() || peak < detect {
+        return Err(SnapMiss::NotFound);
+    }
+    // Region growing (4-connected) inside the window re-centred on the peak.
+    let side = 2 * r + 1;
+    let mut seen = vec![false; (side * side) as usize];
+    let mut stack = vec![(px, py)];
+    seen[(r * side + r) as usize] = true;
+    let mut pixels = Vec::new();
+    let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
+    let mut saturated = false;
+    while let Some((x, y)) = stack.pop() {
+        let i = (y * w + x) as usize;
+        if image.data[i].iter().any(|&c| c >= SATURATED) {
+            saturated = true;
+        }
+        let lit = ctx.lit[i];
+        if lit >= ctx.lit_min {
+            let wt = signal(x, y) / lit;
+            pixels.push((i as u32, wt));
+            sx += wt as f64 * x as f64;
+            sy += wt as f64 * y as f64;
+            sw += wt as f64;
+        }
+        for (nx, ny) in [(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)] {
+            let (lx, ly) = (nx - px + r, ny - py + r);
+            if nx < 0 || ny < 0 || nx >= w || ny >= h || signal(nx, ny) <= member {
+                continue;
+            }
+            if lx < 0 || ly < 0 || lx >= side || ly >= side {
+                return Err(SnapMiss::Truncated);
+            }
+            let k = (ly * side + lx) as usize;
+            if !seen[k] {
+                seen[k] = true;
+                stack.push((nx, ny));
+            }
+        }
+    }
+    if sw <= 0.0 {
+        return Err(SnapMiss::NotFound);
+    }
+    pixels.sort_unstable_by_key(|p| p.0);
+    Ok(Blob { centre: [(sx / sw) as f32, (sy / sw) as f32], energy: sw as f32, pixels, saturated })
+}
+
+/// The outcome of one dot image.
+#[derive(Clone, Debug, Default)]
+pub struct DotImageResult {
+    pub dx: u32,
+    pub dy: u32,
+    /// Projector pixel index (`qy * width + qx`) and its blob.
+    pub blobs: Vec<(u32, Blob)>,
+    /// Dots with no correspondence (off the object or in shadow): not searched.
+    pub off_object: usize,
+    /// Dots predicted on the object but not found.
+    pub not_found: usize,
+    /// Dots whose blob ran into the search window's edge.
+    pub truncated: usize,
+    /// Blobs with a saturated pixel.
+    pub saturated: usize,
+    /// Noise standard deviation measured on this image (channel sum).
+    pub noise_sigma: f32,
+}
+
+impl DotImageResult {
+    /// Dots that were searched for (had a prediction).
+    pub fn predicted(&self) -> usize {
+        self.blobs.len() + self.not_found + self.truncated
+    }
+}
+
+/// Search radius for a dot: half the camera distance to the nearest neighbouring dot of the same
+/// image, so that neighbouring blobs never share a window.
+fn search_radius(pred: &Predictor, qx: u32, qy: u32, here: [f32; 2], spacing: u32, max_radius: u32) -> u32 {
+    let mut nearest = f32::INFINITY;
+    let s = spacing as i64;
+    for (ox, oy) in [(s, 0), (-s, 0), (0, s), (0, -s)] {
+        let (nx, ny) = (qx as i64 + ox, qy as i64 + oy);
+        if nx < 0 || ny < 0 || nx >= pred.proj_width as i64 || ny >= pred.proj_height as i64 {
+            continue;
+        }
+        if let Some(p) = pred.predict(nx as u32, ny as u32) {
+            nearest = nearest.min(((p[0] - here[0]).powi(2) + (p[1] - here[1]).powi(2)).sqrt());
+        }
+    }
+    if !nearest.is_finite() {
+        return (spacing / 2).clamp(2, max_radius);
+    }
+    ((nearest * 0.5).floor() as u32).clamp(2, max_radius)
+}
+
+/// Snaps every dot of one dot image (`spacing`, shift `dx`, `dy`).
+pub fn snap_dot_image(
+    image: &LinearImage,
+    ctx: &SnapContext,
+    pred: &Predictor,
+    spacing: u32,
+    (dx, dy): (u32, u32),
+    params: &SnapParams,
+) -> DotImageResult {
+    let sigma = noise_sigma(image, ctx);
+    let quant = 3.0 * 3.0 / 65535.0;
+    let detect = (params.detect_sigmas * sigma).max(2.0 * quant);
+    let member = (params.member_sigmas * sigma).max(quant);
+    let mut out = DotImageResult { dx, dy, noise_sigma: sigma, ..Default::default() };
+    for qy in (dy..pred.proj_height).step_by(spacing as usize) {
+        for qx in (dx..pred.proj_width).step_by(spacing as usize) {
+            let Some(guess) = pred.predict(qx, qy) else {
+                out.off_object += 1;
+                continue;
+            };
+            let radius = search_radius(pred, qx, qy, guess, spacing, params.max_radius);
+            match snap_blob(image, ctx, guess, radius, detect, member) {
+                Ok(blob) => {
+                    out.saturated += blob.saturated as usize;
+                    out.blobs.push((qy * pred.proj_width + qx, blob));
+                }
+                Err(SnapMiss::NotFound) => out.not_found += 1,
+                Err(SnapMiss::Truncated) => out.truncated += 1,
+            }
+        }
+    }
+    out
+}
+
+/// A snapped dot: projector pixel, camera centre, energy.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Dot {
+    pub projector_px: [u32; 2],
+    pub camera: [f32; 2],
+    pub energy: f32,
+}
+
+/// Everything the transport step learns about one projector.
+#[derive(Clone, Debug, Default)]
+pub struct TransportResult {
+    pub transport: Transport,
+    pub dots: Vec<Dot>,
+    /// Per dot image: name, counts.
+    pub images: Vec<(String, DotImageResult)>,
+    /// Human-readable warnings naming the projector and the images.
+    pub warnings: Vec<String>,
+}
+
+impl TransportResult {
+    /// Share of predicted dots that were found, 0..=1.
+    pub fn found_fraction(&self) -> f64 {
+        let predicted: usize = self.images.iter().map(|(_, r)| r.predicted()).sum();
+        if predicted == 0 { 0.0 } else { self.dots.len() as f64 / predicted as f64 }
+    }
+}
+
+/// Builds a projector's transport from its dot images' results (in any order), checking that
+/// the shifts are distinct, and writes warnings for images where dots went missing.
+pub fn assemble(
+    projector: usize,
+    proj_width: u32,
+    proj_height: u32,
+    spacing: u32,
+    mut images: Vec<(String, DotImageResult)>,
+) -> Result<TransportResult, TransportError> {
+    if !(2..=64).contains(&spacing) {
+        return Err(TransportError::Spacing { projector, spacing });
+    }
+    images.sort_by_key(|(_, r)| (r.dy, r.dx));
+    let mut seen: HashMap<(u32, u32), String> = HashMap::new();
+    let mut warnings = Vec::new();
+    for (name, r) in &images {
+        if r.dx >= spacing || r.dy >= spacing {
+            return Err(TransportError::Shift {
+                projector,
+                image: name.clone(),
+                dx: r.dx,
+                dy: r.dy,
+                spacing,
+            });
+        }
+        if let Some(first) = seen.insert((r.dx, r.dy), name.clone()) {
+            return Err(TransportError::DuplicateShift {
+                projector,
+                dx: r.dx,
+                dy: r.dy,
+                first,
+                second: name.clone(),
+            });
+        }
+        let predicted = r.predicted();
+        let missed = r.not_found + r.truncated;
+        if predicted > 0 && missed * 5 > predicted {
+            warnings.push(format!(
+                "projector {projector}: {name}: {missed} of {predicted} dots predicted on the object were \
+                 not found ({} not found, {} merged or smeared); the correspondences there are kept unrefined",
+                r.not_found, r.truncated
+            ));
+        }
+        if r.saturated > 0 {
+            warnings.push(format!(
+                "projector {projector}: {name}: {} dots are saturated; their footprint weights are too low",
+                r.saturated
+            ));
+        }
+    }
+    let missing = (spacing * spacing) as usize - images.len();
+    if missing > 0 {
+        warnings.push(format!(
+            "projector {projector}: {missing} of {} dot shifts were not captured; their projector pixels \
+             have no transport",
+            spacing * spacing
+        ));
+    }
+    let n = proj_width as usize * proj_height as usize;
+    let mut counts = vec![0u32; n + 1];
+    let mut dots = Vec::new();
+    for (_, r) in &images {
+        for (q, b) in &r.blobs {
+            counts[*q as usize + 1] = b.pixels.len() as u32;
+            dots.push(Dot {
+                projector_px: [q % proj_width, q / proj_width],
+                camera: b.centre,
+                energy: b.energy,
+            });
+        }
+    }
+    for i in 0..n {
+        counts[i + 1] += counts[i];
+    }
+    let total = counts[n] as usize;
+    let mut camera_pixel = vec![0u32; total];
+    let mut weight = vec![0f32; total];
+    for (_, r) in &images {
+        for (q, b) in &r.blobs {
+            let start = counts[*q as usize] as usize;
+            for (k, (p, w)) in b.pixels.iter().enumerate() {
+                camera_pixel[start + k] = *p;
+                weight[start + k] = *w;
+            }
+        }
+    }
+    dots.sort_by_key(|d| (d.projector_px[1], d.projector_px[0]));
+    Ok(TransportResult {
+        transport: Transport { row_start: counts, camera_pixel, weight },
+        dots,
+        images,
+        warnings,
+    })
+}
+
+/// Checks the black/white pair a projector's transport is measured against.
+pub fn check_reference(
+    projector: usize,
+    black: &LinearImage,
+    white: &LinearImage,
+    white_name: &str,
+    cam_width: u32,
+    cam_height: u32,
+) -> Result<(), TransportError> {
+    for (what, img) in [("black image", black), ("white image", white)] {
+        if img.width != cam_width || img.height != cam_height {
+            return Err(TransportError::Size {
+                projector,
+                what: what.into(),
+                got_w: img.width,
+                got_h: img.height,
+                want_w: cam_width,
+                want_h: cam_height,
+            });
+        }
+    }
+    let (mut lit, mut sat) = (0usize, 0usize);
+    for (w, b) in white.data.iter().zip(&black.data) {
+        if w[0] + w[1] + w[2] - b[0] - b[1] - b[2] > 0.03 {
+            lit += 1;
+            sat += w.iter().any(|&c| c >= SATURATED) as usize;
+        }
+    }
+    if lit > 0 && sat * 2 >= lit {
+        return Err(TransportError::WhiteSaturated {
+            projector,
+            white: white_name.into(),
+            percent: 100.0 * sat as f64 / lit as f64,
+        });
+    }
+    Ok(())
+}
+
+/// Statistics of a correspondence refinement.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RefineStats {
+    /// Camera pixels whose correspondence was replaced.
+    pub refined: usize,
+    /// Camera pixels with a correspondence but too few dots nearby.
+    pub too_few_dots: usize,
+    /// Camera pixels where the dots disagreed with the decoded value by more than the limit.
+    pub disagreed: usize,
+    /// Median change applied, projector pixels.
+    pub median_shift: f32,
+}
+
+/// Refines per-camera-pixel correspondences with snapped dots: at each camera pixel, a
+/// Gaussian-weighted local affine fit of projector coordinate against camera position over
+/// the dots within a few pixels, evaluated at the pixel.
+pub fn refine_correspondences(
+    correspondence: &[[f32; 2]],
+    cam_width: u32,
+    cam_height: u32,
+    dots: &[Dot],
+    max_shift: f32,
+) -> (Vec<[f32; 2]>, RefineStats) {
+    let (w, h) = (cam_width as usize, cam_height as usize);
+    // Bucket dots by nearest camera pixel (compressed rows over camera pixels).
+    let mut start = vec![0u32; w * h + 1];
+    let bucket = |d: &Dot| -> Option<usize> {
+        let (x, y) = (d.camera[0].round(), d.camera[1].round());
+        (x >= 0.0 && y >= 0.0 && (x as usize) < w && (y as usize) < h).then(|| y as usize * w + x as usize)
+    };
+    for d in dots {
+        if let Some(b) = bucket(d) {
+            start[b + 1] += 1;
+        }
+    }
+    for i in 0..w * h {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut order = vec![0u32; start[w * h] as usize];
+    for (k, d) in dots.iter().enumerate() {
+        if let Some(b) = bucket(d) {
+            order[fill[b] as usize] = k as u32;
+            fill[b] += 1;
+        }
+    }
+    #[derive(Clone, Copy)]
+    enum Outcome {
+        Skip,
+        Few,
+        Disagree,
+        Refined(f32),
+    }
+    let results: Vec<([f32; 2], Outcome)> = correspondence
+        .par_iter()
+        .enumerate()
+        .map(|(i, c)| {
+            if !(c[0].is_finite() && c[1].is_finite()) {
+                return (*c, Outcome::Skip);
+            }
+            let (px, py) = ((i % w) as f32, (i / w) as f32);
+            for radius in [2i64, 4] {
+                if let Some(fit) = local_affine(px, py, radius, w, h, &start, &order, dots) {
+                    let shift = ((fit[0] - c[0]).powi(2) + (fit[1] - c[1]).powi(2)).sqrt();
+                    if shift > max_shift {
+                        return (*c, Outcome::Disagree);
+                    }
+                    return (fit, Outcome::Refined(shift));
+                }
+            }
+            (*c, Outcome::Few)
+        })
+        .collect();
+    let mut stats = RefineStats::default();
+    let mut shifts = Vec::new();
+    let mut refined = Vec::with_capacity(results.len());
+    for (c, o) in results {
+        refined.push(c);
+        match o {
+            Outcome::Skip => {}
+            Outcome::Few => stats.too_few_dots += 1,
+            Outcome::Disagree => stats.disagreed += 1,
+            Outcome::Refined(s) => {
+                stats.refined += 1;
+                shifts.push(s);
+            }
+        }
+    }
+    if !shifts.is_empty() {
+        let mid = shifts.len() / 2;
+        stats.median_shift = *shifts.select_nth_unstable_by(mid, f32::total_cmp).1;
+    }
+    (refined, stats)
+}
+
+/// Weighted least-squares fit `q = a + J (c - p)` over the dots bucketed within `radius` of
+/// camera pixel p; returns `a`, or `None` with fewer than 6 dots or a degenerate spread.
+#[allow(clippy::too_many_arguments)]
+fn local_affine(
+    px: f32,
+    py: f32,
+    radius: i64,
+    w: usize,
+    h: usize,
+    start: &[u32],
+    order: &[u32],
+    dots: &[Dot],
+) -> Option<[f32; 2]> {
+    let sigma2 = (radius as f64 * 0.6).powi(2);
+    let mut m = [[0.0f64; 3]; 3];
+    let mut bx = [0.0f64; 3];
+    let mut by = [0.0f64; 3];
+    let mut n = 0;
+    let (cx, cy) = (px as i64, py as i64);
+    for y in (cy - radius).max(0)..=(cy + radius).min(h as i64 - 1) {
+        for x in (cx - radius).max(0)..=(cx + radius).min(w as i64 - 1) {
+            let b = y as usize * w + x as usize;
+            for &k in &order[start[b] as usize..start[b + 1] as usize] {
+                let d = &dots[k as usize];
+                let (ex, ey) = ((d.camera[0] - px) as f64, (d.camera[1] - py) as f64);
+                let wt = (-(ex * ex + ey * ey) / (2.0 * sigma2)).exp();
+                let basis = [1.0, ex, ey];
+                for r in 0..3 {
+                    for c in 0..3 {
+                        m[r][c] += wt * basis[r] * basis[c];
+                    }
+                    bx[r] += wt * basis[r] * d.projector_px[0] as f64;
+                    by[r] += wt * basis[r] * d.projector_px[1] as f64;
+                }
+                n += 1;
+            }
+        }
+    }
+    if n < 6 {
+        return None;
+    }
+    let m = nalgebra::Matrix3::from_fn(|r, c| m[r][c]);
+    // Degenerate when the dots are (nearly) collinear: the smallest singular value is tiny.
+    let sv = m.singular_values();
+    if sv.min() < 1e-6 * sv.max() {
+        return None;
+    }
+    let inv = m.try_inverse()?;
+    let ax = inv * nalgebra::Vector3::from(bx);
+    let ay = inv * nalgebra::Vector3::from(by);
+    Some([ax[0] as f32, ay[0] as f32])
+}
+
+/// Per projector pixel footprint energy (sum of weights, camera pixels' worth of light);
+/// NaN where the transport has no row for the pixel.
+pub fn footprint_energy(t: &Transport, proj_width: u32, proj_height: u32) -> Vec<f32> {
+    let n = proj_width as usize * proj_height as usize;
+    if t.row_start.len() != n + 1 {
+        return vec![f32::NAN; n];
+    }
+    (0..n)
+        .map(|q| {
+            let (a, b) = (t.row_start[q] as usize, t.row_start[q + 1] as usize);
+            if a == b { f32::NAN } else { t.weight[a..b].iter().sum() }
+        })
+        .collect()
+}
+
+/// Per camera pixel: whether any projector pixel's footprint of `t` reaches it.
+pub fn coverage_mask(t: &Transport, camera_pixels: usize) -> Vec<bool> {
+    let mut m = vec![false; camera_pixels];
+    for &p in &t.camera_pixel {
+        if let Some(v) = m.get_mut(p as usize) {
+            *v = true;
+        }
+    }
+    m
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+
+    /// A synthetic stage: the projector maps to the camera by `cam = origin + scale * q`, every
+    /// projector pixel's light is a Gaussian blob of `sigma` camera px, albedo varies per pixel.
+    struct Synth {
+        cam_w: u32,
+        cam_h: u32,
+        proj_w: u32,
+        proj_h: u32,
+        origin: [f32; 2],
+        scale: f32,
+        sigma: f32,
+        noise: f32,
+        albedo: Vec<f32>,
+    }
+
+    impl Synth {
+        fn new(seed: u64) -> Self {
+            let (cam_w, cam_h) = (96, 80);
+            let mut rng = ChaCha8Rng::seed_from_u64(seed);
+            let albedo = (0..cam_w * cam_h).map(|_| rng.gen_range(0.4f32..0.9)).collect();
+            Self {
+                cam_w,
+                cam_h,
+                proj_w: 48,
+                proj_h: 40,
+                origin: [8.3, 6.7],
+                scale: 1.6,
+                sigma: 0.9,
+                noise: 0.001,
+                albedo,
+            }
+        }
+
+        fn cam_of(&self, q: [f32; 2]) -> [f32; 2] {
+            [self.origin[0] + self.scale * q[0], self.origin[1] + self.scale * q[1]]
+        }
+
+        /// Irradiance share at camera pixel p from projector pixel q (analytic, normalised so the
+        /// shares of all q at a camera pixel sum to one inside the lit area).
+        fn share(&self, q: [f32; 2], p: [f32; 2]) -> f32 {
+            let c = self.cam_of(q);
+            let d2 = (p[0] - c[0]).powi(2) + (p[1] - c[1]).powi(2);
+            let s = self.sigma;
+            (-d2 / (2.0 * s * s)).exp() * self.scale * self.scale / (2.0 * std::f32::consts::PI * s * s)
+        }
+
+        fn render(&self, lit: impl Fn(u32, u32) -> bool, rng: &mut ChaCha8Rng, level: f32) -> LinearImage {
+            let mut img = LinearImage::new(self.cam_w, self.cam_h).unwrap();
+            for y in 0..self.cam_h {
+                for x in 0..self.cam_w {
+                    let p = [x as f32, y as f32];
+                    // Projector pixels near p (the Gaussian is negligible beyond 4 sigma).
+                    let qc = [(p[0] - self.origin[0]) / self.scale, (p[1] - self.origin[1]) / self.scale];
+                    let reach = (4.0 * self.sigma / self.scale).ceil() as i32 + 1;
+                    let mut e = 0.0;
+                    for qy in qc[1].round() as i32 - reach..=qc[1].round() as i32 + reach {
+                        for qx in qc[0].round() as i32 - reach..=qc[0].round() as i32 + reach {
+                            if qx < 0 || qy < 0 || qx >= self.proj_w as i32 || qy >= self.proj_h as i32 {
+                                continue;
+                            }
+                            if lit(qx as u32, qy as u32) {
+                                e += self.share([qx as f32, qy as f32], p);
+                            }
+                        }
+                    }
+                    let a = self.albedo[(y * self.cam_w + x) as usize];
+                    let v = 0.02 + level * a * e;
+                    let px = [0, 1, 2].map(|c| {
+                        (v * [1.0, 0.9, 0.8][c] + self.noise * rng.gen_range(-1.7f32..1.7)).clamp(0.0, 1.0)
+                    });
+                    img.set(x, y, px);
+                }
+            }
+            img
+        }
+
+        fn correspondences(&self, rng: &mut ChaCha8Rng, jitter: f32) -> Vec<[f32; 2]> {
+            let mut out = vec![[f32::NAN; 2]; (self.cam_w * self.cam_h) as usize];
+            for y in 0..self.cam_h {
+                for x in 0..self.cam_w {
+                    let q =
+                        [(x as f32 - self.origin[0]) / self.scale, (y as f32 - self.origin[1]) / self.scale];
+                    if q[0] >= -0.5
+                        && q[1] >= -0.5
+                        && q[0] < self.proj_w as f32 - 0.5
+                        && q[1] < self.proj_h as f32 - 0.5
+                    {
+                        out[(y * self.cam_w + x) as usize] = [
+                            q[0] + jitter * rng.gen_range(-1.0f32..1.0),
+                            q[1] + jitter * rng.gen_range(-1.0f32..1.0),
+                        ];
+                    }
+                }
+            }
+            out
+        }
+    }
+
+    fn run(synth: &Synth, spacing: u32, jitter: f32) -> (TransportResult, Vec<[f32; 2]>) {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let black = synth.render(|_, _| false, &mut rng, 0.5);
+        let white = synth.render(|_, _| true, &mut rng, 0.5);
+        let corr = synth.correspondences(&mut rng, jitter);
+        let params = SnapParams::default();
+        let ctx = SnapContext::new(&black, &white, synth.noise, &params);
+        let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        let mut images = Vec::new();
+        for dy in 0..spacing {
+            for dx in 0..spacing {
+                let img = synth.render(|x, y| x % spacing == dx && y % spacing == dy, &mut rng, 0.5);
+                let r = snap_dot_image(&img, &ctx, &pred, spacing, (dx, dy), &params);
+                images.push((format!("dots_{dx}_{dy}.png"), r));
+            }
+        }
+        (assemble(0, synth.proj_w, synth.proj_h, spacing, images).unwrap(), corr)
+    }
+
+    #[test]
+    fn blobs_snap_to_known_centres_under_noise() {
+        let synth = Synth::new(1);
+        let (res, _) = run(&synth, 8, 0.6);
+        assert!(res.dots.len() > 800, "found {}", res.dots.len());
+        let mut errs: Vec<f32> = res
+            .dots
+            .iter()
+            .map(|d| {
+                let t = synth.cam_of([d.projector_px[0] as f32, d.projector_px[1] as f32]);
+                ((d.camera[0] - t[0]).powi(2) + (d.camera[1] - t[1]).powi(2)).sqrt()
+            })
+            .collect();
+        errs.sort_by(f32::total_cmp);
+        let median = errs[errs.len() / 2];
+        assert!(median < 0.05, "median dot error {median} px");
+        // Interior footprints carry one projector pixel's worth of light: scale^2 camera px.
+        let energy = footprint_energy(&res.transport, synth.proj_w, synth.proj_h);
+        let q = 20 * synth.proj_w as usize + 20;
+        let want = synth.scale * synth.scale;
+        assert!((energy[q] - want).abs() / want < 0.05, "energy {} vs {want}", energy[q]);
+    }
+
+    #[test]
+    fn refinement_removes_decoding_jitter() {
+        let synth = Synth::new(2);
+        let (res, corr) = run(&synth, 8, 0.6);
+        let (refined, stats) = refine_correspondences(&corr, synth.cam_w, synth.cam_h, &res.dots, 2.0);
+        assert!(stats.refined > 3000, "{stats:?}");
+        let err = |c: &[[f32; 2]]| {
+            let mut e: Vec<f32> = (0..c.len())
+                .filter(|&i| c[i][0].is_finite())
+                .filter_map(|i| {
+                    let (x, y) = ((i as u32 % synth.cam_w) as f32, (i as u32 / synth.cam_w) as f32);
+                    let t = [(x - synth.origin[0]) / synth.scale, (y - synth.origin[1]) / synth.scale];
+                    // Interior only: the border has no dots on one side.
+                    (t[0] > 2.0
+                        && t[1] > 2.0
+                        && t[0] < synth.proj_w as f32 - 3.0
+                        && t[1] < synth.proj_h as f32 - 3.0)
+                        .then(|| ((c[i][0] - t[0]).powi(2) + (c[i][1] - t[1]).powi(2)).sqrt())
+                })
+                .collect();
+            e.sort_by(f32::total_cmp);
+            e[e.len() / 2]
+        };
+        let (before, after) = (err(&corr), err(&refined));
+        assert!(after < 0.05 && after < before / 5.0, "median error before {before}, after {after}");
+    }
+
+    #[test]
+    fn dots_off_the_object_are_counted_not_searched() {
+        let synth = Synth::new(3);
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let black = synth.render(|_, _| false, &mut rng, 0.5);
+        let white = synth.render(|_, _| true, &mut rng, 0.5);
+        let mut corr = synth.correspondences(&mut rng, 0.0);
+        // The object ends at camera column 50: the correspondences stop there.
+        for (i, c) in corr.iter_mut().enumerate() {
+            if i as u32 % synth.cam_w >= 50 {
+                *c = [f32::NAN; 2];
+            }
+        }
+        let params = SnapParams::default();
+        let ctx = SnapContext::new(&black, &white, synth.noise, &params);
+        let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        let img = synth.render(|x, y| x % 8 == 3 && y % 8 == 3, &mut rng, 0.5);
+        let r = snap_dot_image(&img, &ctx, &pred, 8, (3, 3), &params);
+        assert!(r.off_object > 0 && !r.blobs.is_empty(), "{r:?}");
+        assert_eq!(r.off_object + r.predicted(), (6 * 5) as usize);
+    }
+
+    #[test]
+    fn saturation_and_missing_dots_are_reported_by_image() {
+        let synth = Synth::new(4);
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let black = synth.render(|_, _| false, &mut rng, 0.5);
+        let white = synth.render(|_, _| true, &mut rng, 0.5);
+        let corr = synth.correspondences(&mut rng, 0.0);
+        let params = SnapParams::default();
+        let ctx = SnapContext::new(&black, &white, synth.noise, &params);
+        let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        let bright = synth.render(|x, y| x % 8 == 0 && y % 8 == 0, &mut rng, 8.0);
+        let dark = synth.render(|_, _| false, &mut rng, 0.5);
+        let images = vec![
+            ("proj0/dots_0_0.png".to_string(), snap_dot_image(&bright, &ctx, &pred, 8, (0, 0), &params)),
+            ("proj0/dots_1_0.png".to_string(), snap_dot_image(&dark, &ctx, &pred, 8, (1, 0), &params)),
+        ];
+        let res = assemble(0, synth.proj_w, synth.proj_h, 8, images).unwrap();
+        let all = res.warnings.join("\n");
+        assert!(all.contains("projector 0: proj0/dots_0_0.png") && all.contains("saturated"), "{all}");
+        assert!(all.contains("proj0/dots_1_0.png") && all.contains("not found"), "{all}");
+        assert!(all.contains("62 of 64 dot shifts were not captured"), "{all}");
+        // A saturated white reference is an error naming the image.
+        let err = check_reference(0, &black, &bright, "proj0/white.png", synth.cam_w, synth.cam_h);
+        assert!(err.is_ok(), "few saturated pixels are tolerated");
+        let white_sat = synth.render(|_, _| true, &mut rng, 20.0);
+        let err = check_reference(0, &black, &white_sat, "proj0/white.png", synth.cam_w, synth.cam_h)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("proj0/white.png") && err.contains("saturated"), "{err}");
+    }
+
+    #[test]
+    fn duplicate_shifts_are_refused() {
+        let r = DotImageResult { dx: 1, dy: 2, ..Default::default() };
+        let err = assemble(2, 16, 16, 4, vec![("a.png".into(), r.clone()), ("b.png".into(), r)]).unwrap_err();
+        assert!(err.to_string().contains("a.png") && err.to_string().contains("b.png"), "{err}");
+        assert!(matches!(assemble(2, 16, 16, 1, vec![]), Err(TransportError::Spacing { .. })));
+    }
+}

@@ -1,0 +1,11 @@
+//! Colour classification (paper §4.1): every pixel of the diffusely lit photo assigned to one of
+//! the few paint colours the conservator names by picking example pixels.
+//!
+//! Output contract (read by the restoration step): a [`LabelMap`] (`labels.png`, 8-bit grey,
+//! value = class index, [`MASKED`] = not object) and a [`Palette`] (`palette.json`).
+
+mod error;
+mod palette;
+
+pub use error::ClassifyError;
+pub use palette::{LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, output_paths};

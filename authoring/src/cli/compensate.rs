@@ -1,0 +1,93 @@
+//! `restage-author compensate STAGE_DIR RESTORED --ebound-lux L --m 8 --margin 0.05 --out DIR`:
+//! one frame per projector for a restored image, under the light bound, with a report.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::Args as ClapArgs;
+use indicatif::{ProgressBar, ProgressStyle};
+use restage_authoring::compensate::{self, Exponent, Params, Prepared};
+use restage_authoring::imgio::LinearImage;
+use restage_authoring::stage_model::StageModel;
+
+#[derive(ClapArgs, Debug)]
+pub struct Args {
+    /// Stage model folder (holds stage.bin).
+    pub stage_dir: PathBuf,
+    /// The restored image in camera space: a PNG, or a folder holding restored.png.
+    pub restored: PathBuf,
+    /// Maximum irradiance per unit area, lux.
+    #[arg(long = "ebound-lux")]
+    pub ebound_lux: f64,
+    /// Smoothness exponent m of Eq. 12 (>= 0, or "inf").
+    #[arg(long, default_value = "8")]
+    pub m: Exponent,
+    /// Safety margin: frames stay at or below E_bound * (1 - margin).
+    #[arg(long, default_value_t = 0.05)]
+    pub margin: f64,
+    /// Fraction of object points that may be dimmed locally rather than darkening everything.
+    #[arg(long, default_value_t = 0.01)]
+    pub clip_fraction: f64,
+    /// Camera pixels per light-certificate point along each axis.
+    #[arg(long, default_value_t = 2)]
+    pub reduction: u32,
+    /// Output folder for the frames, the certificate and the report.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// Resolves RESTORED: a file, or `restored.png` inside a folder.
+pub fn restored_path(p: &Path) -> PathBuf {
+    if p.is_dir() { p.join("restored.png") } else { p.to_path_buf() }
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let params = Params {
+        e_bound_lux: args.ebound_lux,
+        m: args.m,
+        margin: args.margin,
+        clip_fraction: args.clip_fraction,
+        reduction: args.reduction,
+    };
+    params.validate()?;
+    let bar =
+        ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})")?);
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar.set_message("loading the stage model");
+    let stage = StageModel::load(&args.stage_dir)
+        .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;
+    let restored = restored_path(&args.restored);
+    let target = LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
+    bar.set_message("preparing geometry and the light certificate");
+    let prep = Prepared::new(&stage, params.reduction).context("preparing the stage model")?;
+    bar.set_message("computing frames and enforcing the light bound");
+    let comp = compensate::compensate_prepared(&stage, &prep, &target, &params)
+        .with_context(|| format!("compensating {}", restored.display()))?;
+    bar.set_message("writing frames and report");
+    compensate::io::save(&args.out, &comp, &params)?;
+    compensate::report::save(
+        &args.out.join("report"),
+        &comp,
+        &prep.geometry,
+        &params,
+        stage.camera.width,
+        stage.camera.height,
+    )?;
+    bar.finish_and_clear();
+    let s = &comp.stats;
+    eprintln!(
+        "{} frames in {}: peak {:.2} lx (limit {:.2} lx, E_bound {} lx), scale {:.4}, \
+         limited by bound {:.2} % / saturation {:.2} % of {} points; report: {}",
+        comp.frames.len(),
+        args.out.display(),
+        s.peak_lux,
+        s.limit_lux,
+        s.e_bound_lux,
+        s.scale,
+        100.0 * s.limited_by_bound as f64 / s.covered_points as f64,
+        100.0 * s.limited_by_saturation as f64 / s.covered_points as f64,
+        s.covered_points,
+        args.out.join("report/index.html").display()
+    );
+    Ok(())
+}

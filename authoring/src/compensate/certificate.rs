@@ -1,0 +1,164 @@
+//! The light certificate: object points at reduced resolution, each with, per projector, the
+//! rectangle of projector pixels whose light can reach it and an upper bound of the lux per
+//! unit of relative output there. The guarantee is enforced on it, and it travels in the
+//! bundle so the appliance can recompute every scene's irradiance by itself
+//! (`restage_shared::light::max_irradiance`, same semantics).
+//!
+//! A point's rectangle per projector covers, for every camera pixel of its patch that the
+//! projector sees, the 3x3 projector pixels around the measured correspondence (a lens blur
+//! of up to about one pixel) and every pixel whose measured footprint (transport) reaches
+//! that camera pixel. Its coefficient is the largest `eta_ik` over the patch. So the
+//! brightest pixel of the rectangle times the coefficient bounds the light of any point of
+//! the patch: the check over-estimates, never under-estimates.
+
+use rayon::prelude::*;
+
+use super::geometry::Geometry;
+use crate::stage_model::StageModel;
+
+/// A rectangle `[x0, x1) x [y0, y1)` of projector pixels and its coefficient (lux per unit
+/// of relative output). Empty (`x0 >= x1`) means the projector does not reach the point.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Block {
+    pub x0: u16,
+    pub y0: u16,
+    pub x1: u16,
+    pub y1: u16,
+    pub lux_per_unit: f32,
+}
+
+impl Block {
+    pub fn is_empty(&self) -> bool {
+        self.x0 >= self.x1 || self.y0 >= self.y1
+    }
+
+    fn include(&mut self, x0: i64, y0: i64, x1: i64, y1: i64, w: u32, h: u32) {
+        let (x0, y0) = (x0.clamp(0, w as i64) as u16, y0.clamp(0, h as i64) as u16);
+        let (x1, y1) = (x1.clamp(0, w as i64) as u16, y1.clamp(0, h as i64) as u16);
+        if x0 >= x1 || y0 >= y1 {
+            return;
+        }
+        if self.is_empty() {
+            (self.x0, self.y0, self.x1, self.y1) = (x0, y0, x1, y1);
+        } else {
+            self.x0 = self.x0.min(x0);
+            self.y0 = self.y0.min(y0);
+            self.x1 = self.x1.max(x1);
+            self.y1 = self.y1.max(y1);
+        }
+    }
+}
+
+/// The certificate as compensation builds and enforces it.
+#[derive(Clone, Debug)]
+pub struct Certificate {
+    /// Camera pixels per certificate point along each axis.
+    pub reduction: u32,
+    /// Per certificate point, its patch's top-left camera pixel.
+    pub point_px: Vec<[u16; 2]>,
+    /// Per projector: (width, height, one block per point).
+    pub projectors: Vec<(u32, u32, Vec<Block>)>,
+    /// Room light counted at every point, lux.
+    pub ambient_lux: f64,
+    /// Per camera pixel, its certificate point (`u32::MAX` where no projector sees it).
+    pub point_of_pixel: Vec<u32>,
+}
+
+impl Certificate {
+    pub fn points(&self) -> usize {
+        self.point_px.len()
+    }
+}
+
+/// Per camera pixel and projector, the rectangle of pixels that can light it (before
+/// grouping into patches).
+fn pixel_blocks(stage: &StageModel, geom: &Geometry, k: usize) -> Vec<Block> {
+    let p = &stage.projectors[k];
+    let kn = geom.projectors;
+    let (w, h) = (p.width, p.height);
+    let mut blocks: Vec<Block> = (0..geom.points)
+        .into_par_iter()
+        .map(|i| {
+            let mut b = Block::default();
+            if geom.eta[i * kn + k] > 0.0 {
+                let c = geom.coord[i * kn + k];
+                let (x, y) = (c[0].round() as i64, c[1].round() as i64);
+                b.include(x - 1, y - 1, x + 2, y + 2, w, h);
+            }
+            b
+        })
+        .collect();
+    let t = &stage.transport[k];
+    if t.row_start.len() == (w * h) as usize + 1 {
+        for px in 0..(w * h) as usize {
+            let (x, y) = ((px % w as usize) as i64, (px / w as usize) as i64);
+            for e in t.row_start[px] as usize..t.row_start[px + 1] as usize {
+                let j = t.camera_pixel[e] as usize;
+                if j < geom.points && t.weight[e] > 0.0 && geom.eta[j * kn + k] > 0.0 {
+                    blocks[j].include(x, y, x + 1, y + 1, w, h);
+                }
+            }
+        }
+    }
+    blocks
+}
+
+/// Builds the certificate with `reduction x reduction` camera pixels per point and the room
+/// light `ambient_lux` counted everywhere.
+pub fn build(stage: &StageModel, geom: &Geometry, reduction: u32, ambient_lux: f64) -> Certificate {
+    let r = reduction.max(1) as usize;
+    let (cw, ch) = (stage.camera.width as usize, stage.camera.height as usize);
+    let (gw, gh) = (cw.div_ceil(r), ch.div_ceil(r));
+    let kn = geom.projectors;
+    let per_pixel: Vec<Vec<Block>> = (0..kn).map(|k| pixel_blocks(stage, geom, k)).collect();
+    // Patches with at least one camera pixel that some projector sees, in raster order.
+    let mut point_px = Vec::new();
+    let mut patch_point = vec![u32::MAX; gw * gh];
+    for gy in 0..gh {
+        for gx in 0..gw {
+            let seen = (gy * r..((gy + 1) * r).min(ch))
+                .any(|y| (gx * r..((gx + 1) * r).min(cw)).any(|x| geom.covered(y * cw + x)));
+            if seen {
+                patch_point[gy * gw + gx] = point_px.len() as u32;
+                point_px.push([(gx * r) as u16, (gy * r) as u16]);
+            }
+        }
+    }
+    let projectors = (0..kn)
+        .map(|k| {
+            let p = &stage.projectors[k];
+            let blocks = point_px
+                .par_iter()
+                .map(|&[x0, y0]| {
+                    let mut b = Block::default();
+                    let mut l = 0.0f32;
+                    for y in y0 as usize..(y0 as usize + r).min(ch) {
+                        for x in x0 as usize..(x0 as usize + r).min(cw) {
+                            let i = y * cw + x;
+                            let pb = per_pixel[k][i];
+                            if !pb.is_empty() {
+                                b.include(
+                                    pb.x0 as i64,
+                                    pb.y0 as i64,
+                                    pb.x1 as i64,
+                                    pb.y1 as i64,
+                                    p.width,
+                                    p.height,
+                                );
+                                l = l.max(geom.eta[i * kn + k]);
+                            }
+                        }
+                    }
+                    // A hair above, so that f32 rounding of eta cannot under-count.
+                    b.lux_per_unit = l * (1.0 + 1e-6);
+                    b
+                })
+                .collect();
+            (p.width, p.height, blocks)
+        })
+        .collect();
+    let point_of_pixel = (0..cw * ch)
+        .map(|i| if geom.covered(i) { patch_point[(i / cw / r) * gw + (i % cw) / r] } else { u32::MAX })
+        .collect();
+    Certificate { reduction: r as u32, point_px, projectors, ambient_lux, point_of_pixel }
+}

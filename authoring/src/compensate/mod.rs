@@ -1,0 +1,452 @@
+//! Light-bounded compensation (paper §5.1, with the brief's fixes): from a stage model and a
+//! restored image, one 8-bit frame per projector that makes the object look restored, as
+//! bright as the light bound and the projectors allow, smooth across overlaps (Eq. 12), and
+//! never above `E_bound` per unit area — checked on the final frames (see [`guarantee`]).
+//!
+//! How a frame is made: each object point i (camera pixel) needs irradiance
+//! `D_i = (s G_i - ambient_i) / gain_i` above black, per channel, for the camera to see
+//! `s G_i`. Projector k supplies the share `w_ik` of it, so its relative output (response
+//! scale) is `w_ik D_i / eta_ik`, where `eta_ik` is the lux the pixel gives per unit output.
+//! The global scale `s` is the largest that keeps every point under the bound (black level
+//! included, fix 2) and every projector unsaturated (fix 1) — except for a user-chosen small
+//! fraction of points (`clip_fraction`), which are dimmed locally instead of darkening the
+//! whole object. Outputs of the points falling on one projector pixel are averaged
+//! (bilinear splatting), pixels lighting no object point stay black, and outputs go through
+//! the inverse responses to 8-bit values.
+
+pub mod certificate;
+pub mod geometry;
+pub mod guarantee;
+pub mod io;
+pub mod report;
+pub mod response;
+pub mod synthetic;
+pub mod weights;
+
+use image::RgbImage;
+use rayon::prelude::*;
+use thiserror::Error;
+
+pub use self::certificate::Certificate;
+pub use self::geometry::Geometry;
+pub use self::guarantee::Enforcement;
+use self::guarantee::bound_lux;
+use self::response::InverseResponse;
+pub use self::weights::Exponent;
+use crate::imgio::LinearImage;
+use crate::stage_model::{StageModel, StageModelError};
+
+#[derive(Debug, Error)]
+pub enum CompensateError {
+    #[error(
+        "restored image is {got_w}x{got_h} but the stage model's camera is {want_w}x{want_h} \
+         (the restored image must be in camera space)"
+    )]
+    SizeMismatch { got_w: u32, got_h: u32, want_w: u32, want_h: u32 },
+    #[error("E_bound {0} lux is invalid (expected a finite number of lux > 0)")]
+    BadBound(f64),
+    #[error("safety margin {0} is invalid (expected a fraction 0 <= margin < 1, e.g. 0.05)")]
+    BadMargin(f64),
+    #[error("smoothness exponent m = {0} is invalid (expected a number >= 0, or infinity)")]
+    BadExponent(f64),
+    #[error("clip fraction {0} is invalid (expected 0 <= fraction <= 0.5)")]
+    BadClipFraction(f64),
+    #[error("certificate reduction {0} is invalid (expected 1..=16 camera pixels per point)")]
+    BadReduction(u32),
+    #[error(
+        "the projectors' black level (plus {room_lux:.2} lux of room light) alone gives \
+         {black_lux:.2} lux at camera pixel ({x}, {y}), above the usable bound {limit:.2} lux \
+         (E_bound {e_bound} lux less the {margin} safety margin): no frames can stay under this \
+         bound; raise E_bound, dim the room or switch projectors off"
+    )]
+    BlackAboveBound { black_lux: f64, room_lux: f64, x: u32, y: u32, limit: f64, e_bound: f64, margin: f64 },
+    #[error(
+        "the stage model has no radiometric calibration (per-pixel gain has {got} entries, \
+         expected {want}); run calibration with gray ramps first"
+    )]
+    NoGain { got: usize, want: usize },
+    #[error("no object point is lit by any projector: the stage model has no coverage")]
+    NoCoverage,
+    #[error(transparent)]
+    Stage(#[from] StageModelError),
+}
+
+/// What the conservator chooses.
+#[derive(Clone, Debug)]
+pub struct Params {
+    /// Maximum irradiance per unit area, lux.
+    pub e_bound_lux: f64,
+    /// Smoothness exponent of Eq. 12.
+    pub m: Exponent,
+    /// Safety margin: the recomputed irradiance must stay at or below `E_bound * (1 - margin)`.
+    pub margin: f64,
+    /// Fraction of object points that may be dimmed locally (below the global scale) so that
+    /// a few hard points do not darken the whole object; 0 is the paper's pure global scale.
+    pub clip_fraction: f64,
+    /// Camera pixels per light-certificate point along each axis (1 = every object point).
+    pub reduction: u32,
+}
+
+impl Params {
+    pub fn new(e_bound_lux: f64, m: Exponent, margin: f64) -> Result<Self, CompensateError> {
+        let p = Self { e_bound_lux, m, margin, clip_fraction: 0.01, reduction: 2 };
+        p.validate()?;
+        Ok(p)
+    }
+
+    pub fn validate(&self) -> Result<(), CompensateError> {
+        if !(self.e_bound_lux.is_finite() && self.e_bound_lux > 0.0) {
+            return Err(CompensateError::BadBound(self.e_bound_lux));
+        }
+        if !(0.0..1.0).contains(&self.margin) {
+            return Err(CompensateError::BadMargin(self.margin));
+        }
+        if !(0.0..=0.5).contains(&self.clip_fraction) {
+            return Err(CompensateError::BadClipFraction(self.clip_fraction));
+        }
+        if !(1..=16).contains(&self.reduction) {
+            return Err(CompensateError::BadReduction(self.reduction));
+        }
+        if let Exponent::Finite(m) = self.m
+            && !(m.is_finite() && m >= 0.0)
+        {
+            return Err(CompensateError::BadExponent(m));
+        }
+        Ok(())
+    }
+
+    /// The limit the final frames are held to, lux.
+    pub fn limit(&self) -> f64 {
+        self.e_bound_lux * (1.0 - self.margin)
+    }
+}
+
+/// Figures about one compensation.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Stats {
+    /// Object points lit by at least one projector and with a calibrated gain.
+    pub covered_points: usize,
+    /// Covered points whose target needed more light than the bound allows at scale `s`.
+    pub limited_by_bound: usize,
+    /// Covered points whose target needed more output than a projector has at scale `s`.
+    pub limited_by_saturation: usize,
+    /// Highest recomputed irradiance of the final frames, lux.
+    pub peak_lux: f64,
+    /// Highest irradiance with every frame black (black level plus room light), lux.
+    pub peak_black_lux: f64,
+    /// Room light counted everywhere (estimated from the stage model's ambient), lux.
+    pub room_lux: f64,
+    pub certificate_points: usize,
+    pub e_bound_lux: f64,
+    pub limit_lux: f64,
+    /// Global scale s: camera value per unit of the target's linear value.
+    pub scale: f64,
+    pub rounds: u32,
+    pub dimmed_pixels: usize,
+}
+
+/// The result: frames and what is needed to report on them.
+#[derive(Clone, Debug)]
+pub struct Compensation {
+    /// One 8-bit RGB frame per projector, at the projector's resolution.
+    pub frames: Vec<RgbImage>,
+    /// Per point and projector (`[i * projectors + k]`), the weight `w_ik` of Eq. 12.
+    pub weights: Vec<f32>,
+    /// Per camera pixel, the recomputed irradiance of the final frames at its certificate
+    /// point (lux, conservative); 0 where no projector reaches.
+    pub lux: Vec<f64>,
+    pub stats: Stats,
+}
+
+/// Stage data that do not depend on the target: geometry, inverse responses, certificate.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    pub geometry: Geometry,
+    pub inverse: Vec<[InverseResponse; 3]>,
+    pub certificate: Certificate,
+    /// Per certificate point, black-level irradiance (lux per channel, room light excluded).
+    pub floor: Vec<[f64; 3]>,
+}
+
+impl Prepared {
+    /// `reduction`: camera pixels per certificate point along each axis.
+    pub fn new(stage: &StageModel, reduction: u32) -> Result<Self, CompensateError> {
+        stage.validate()?;
+        if !(1..=16).contains(&reduction) {
+            return Err(CompensateError::BadReduction(reduction));
+        }
+        let n = stage.pixel_count();
+        if stage.gain.len() != n || stage.ambient.len() != n {
+            return Err(CompensateError::NoGain { got: stage.gain.len().min(stage.ambient.len()), want: n });
+        }
+        let geometry = Geometry::new(stage);
+        let inverse = stage
+            .projectors
+            .iter()
+            .map(|p| std::array::from_fn(|c| InverseResponse::new(&p.response[c])))
+            .collect();
+        let room = room_lux(stage, &geometry);
+        let certificate = certificate::build(stage, &geometry, reduction, room);
+        let floor = guarantee::floor_lux(stage, &certificate);
+        Ok(Self { geometry, inverse, certificate, floor })
+    }
+}
+
+/// Room light (lux) from the stage model: per covered pixel, what its ambient camera value
+/// says beyond the projectors' black level; the 99.5th percentile over the object, so a few
+/// noisy dark pixels do not dominate. Counted toward the bound at every point.
+fn room_lux(stage: &StageModel, geom: &Geometry) -> f64 {
+    let kn = geom.projectors;
+    let mut v: Vec<f64> = (0..geom.points)
+        .into_par_iter()
+        .filter_map(|i| {
+            if !geom.covered(i) || !stage.gain[i].iter().all(|g| g.is_finite() && *g > 0.0) {
+                return None;
+            }
+            let mut best = 0.0f64;
+            for c in 0..3 {
+                let black: f64 =
+                    (0..kn).map(|k| geom.eta[i * kn + k] as f64 * stage.projectors[k].black[c] as f64).sum();
+                best = best.max(stage.ambient[i][c] as f64 / stage.gain[i][c] as f64 - black);
+            }
+            Some(best)
+        })
+        .collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    let q = ((v.len() as f64 * 0.995) as usize).min(v.len() - 1);
+    let (_, &mut r, _) = v.select_nth_unstable_by(q, f64::total_cmp);
+    r.max(0.0)
+}
+
+/// Computes one frame per projector for `target` (linear RGB in camera space).
+pub fn compensate(
+    stage: &StageModel,
+    target: &LinearImage,
+    params: &Params,
+) -> Result<Compensation, CompensateError> {
+    params.validate()?;
+    let prep = Prepared::new(stage, params.reduction)?;
+    compensate_prepared(stage, &prep, target, params)
+}
+
+/// [`compensate`] with the target-independent work done once.
+pub fn compensate_prepared(
+    stage: &StageModel,
+    prep: &Prepared,
+    target: &LinearImage,
+    params: &Params,
+) -> Result<Compensation, CompensateError> {
+    params.validate()?;
+    let cam = &stage.camera;
+    if target.width != cam.width || target.height != cam.height {
+        return Err(CompensateError::SizeMismatch {
+            got_w: target.width,
+            got_h: target.height,
+            want_w: cam.width,
+            want_h: cam.height,
+        });
+    }
+    let geom = &prep.geometry;
+    let (n, kn) = (geom.points, geom.projectors);
+    let limit = params.limit();
+
+    // Fix 2: black level (and room light) is light too. Refuse when it alone breaks the bound.
+    let cert = &prep.certificate;
+    let room = cert.ambient_lux;
+    let (worst, peak_black) = prep
+        .floor
+        .iter()
+        .enumerate()
+        .map(|(i, b)| (i, room + bound_lux(*b)))
+        .fold((0, 0.0f64), |a, b| if b.1 > a.1 { b } else { a });
+    if peak_black > limit {
+        let [x, y] = cert.point_px[worst];
+        return Err(CompensateError::BlackAboveBound {
+            black_lux: peak_black,
+            room_lux: room,
+            x: x as u32,
+            y: y as u32,
+            limit,
+            e_bound: params.e_bound_lux,
+            margin: params.margin,
+        });
+    }
+    // Per camera pixel, the light available above the floor of its certificate point.
+    let headroom = |i: usize| -> [f64; 3] {
+        let pt = cert.point_of_pixel[i];
+        std::array::from_fn(|c| (limit - room - prep.floor[pt as usize][c]).max(0.0))
+    };
+
+    let mut weights = vec![0.0f32; n * kn];
+    weights
+        .par_chunks_mut(kn)
+        .zip(geom.l.par_chunks(kn))
+        .for_each(|(w, l)| weights::point_weights(l, params.m, w));
+
+    // Per covered point, the largest scale it can take (bound, saturation), +inf if any.
+    let usable = |i: usize| {
+        geom.covered(i)
+            && stage.gain[i].iter().all(|g| g.is_finite() && *g > 0.0)
+            && target.data[i].iter().all(|v| v.is_finite())
+    };
+    let caps: Vec<Option<(f64, f64)>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            if !usable(i) {
+                return None;
+            }
+            let (g, a, t, b) = (stage.gain[i], stage.ambient[i], target.data[i], headroom(i));
+            let mut bound = f64::INFINITY;
+            let mut sat = f64::INFINITY;
+            for c in 0..3 {
+                let tc = t[c].max(0.0) as f64;
+                if tc <= 0.0 {
+                    continue;
+                }
+                let (gc, ac) = (g[c] as f64, a[c] as f64);
+                bound = bound.min((b[c] * gc + ac) / tc);
+                for k in 0..kn {
+                    let w = weights[i * kn + k] as f64;
+                    if w > 0.0 {
+                        sat = sat.min((geom.eta[i * kn + k] as f64 * gc / w + ac) / tc);
+                    }
+                }
+            }
+            Some((bound, sat))
+        })
+        .collect();
+    let covered = caps.iter().filter(|c| c.is_some()).count();
+    if covered == 0 {
+        return Err(CompensateError::NoCoverage);
+    }
+    let mut per_point: Vec<f64> = caps.iter().flatten().map(|(b, s)| b.min(*s)).collect();
+    let q = ((params.clip_fraction * covered as f64).floor() as usize).min(covered - 1);
+    let (_, &mut s, _) = per_point.select_nth_unstable_by(q, f64::total_cmp);
+    let scale = if s.is_finite() { s.max(0.0) } else { 0.0 };
+
+    // Per point demand (lux above black, per channel), clipped locally where needed.
+    let demand: Vec<Option<[f64; 3]>> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            caps[i]?;
+            let (g, a, t, b) = (stage.gain[i], stage.ambient[i], target.data[i], headroom(i));
+            let mut d: [f64; 3] = std::array::from_fn(|c| {
+                ((scale * t[c].max(0.0) as f64 - a[c] as f64) / g[c] as f64).max(0.0)
+            });
+            let mut f = 1.0f64;
+            for c in 0..3 {
+                if d[c] > 0.0 {
+                    f = f.min(b[c] / d[c]);
+                    for k in 0..kn {
+                        let w = weights[i * kn + k] as f64;
+                        if w > 0.0 {
+                            f = f.min(geom.eta[i * kn + k] as f64 / (w * d[c]));
+                        }
+                    }
+                }
+            }
+            if f < 1.0 {
+                d = d.map(|v| v * f.max(0.0));
+            }
+            Some(d)
+        })
+        .collect();
+    let tol = 1.0 + 1e-9;
+    let (mut by_bound, mut by_sat) = (0, 0);
+    for (i, c) in caps.iter().enumerate() {
+        if let (Some((b, s)), Some(_)) = (c, demand[i]) {
+            by_bound += (*b * tol < scale) as usize;
+            by_sat += (*s * tol < scale) as usize;
+        }
+    }
+
+    // Splat each point's relative output onto the projector pixels around it (averaging).
+    let mut frames: Vec<RgbImage> = (0..kn)
+        .into_par_iter()
+        .map(|k| {
+            let p = &stage.projectors[k];
+            let (pw, ph) = (p.width as usize, p.height as usize);
+            let mut acc = vec![[0.0f32; 4]; pw * ph];
+            for i in 0..n {
+                let Some(d) = demand[i] else { continue };
+                let eta = geom.eta[i * kn + k];
+                if eta <= 0.0 {
+                    continue;
+                }
+                let w = weights[i * kn + k] as f64;
+                let r = d.map(|v| (w * v / eta as f64) as f32);
+                let c = geom.coord[i * kn + k];
+                let (x0, y0) = (c[0].floor(), c[1].floor());
+                let (fx, fy) = (c[0] - x0, c[1] - y0);
+                for (dx, dy, bw) in [
+                    (0, 0, (1.0 - fx) * (1.0 - fy)),
+                    (1, 0, fx * (1.0 - fy)),
+                    (0, 1, (1.0 - fx) * fy),
+                    (1, 1, fx * fy),
+                ] {
+                    let (x, y) = (x0 as i64 + dx, y0 as i64 + dy);
+                    if bw <= 0.0 || x < 0 || y < 0 || x >= pw as i64 || y >= ph as i64 {
+                        continue;
+                    }
+                    let a = &mut acc[y as usize * pw + x as usize];
+                    for ch in 0..3 {
+                        a[ch] += bw * r[ch];
+                    }
+                    a[3] += bw;
+                }
+            }
+            let inv = &prep.inverse[k];
+            let mut frame = RgbImage::new(p.width, p.height);
+            for (px, a) in frame.pixels_mut().zip(&acc) {
+                if a[3] > 0.0 {
+                    px.0 = std::array::from_fn(|ch| inv[ch].nearest(a[ch] / a[3]));
+                }
+            }
+            frame
+        })
+        .collect();
+
+    // Fix 3: the guarantee, on the final 8-bit frames.
+    let enf = guarantee::enforce(cert, &prep.inverse, &prep.floor, &mut frames, limit);
+    let lux: Vec<f64> = cert
+        .point_of_pixel
+        .iter()
+        .map(|&pt| if pt == u32::MAX { 0.0 } else { enf.lux[pt as usize] })
+        .collect();
+    let peak_lux = enf.lux.iter().copied().fold(0.0, f64::max);
+    tracing::info!(
+        scale,
+        peak_lux,
+        limit,
+        rounds = enf.rounds,
+        dimmed = enf.dimmed_pixels,
+        covered,
+        by_bound,
+        by_sat,
+        "compensation done"
+    );
+    Ok(Compensation {
+        frames,
+        weights,
+        lux,
+        stats: Stats {
+            covered_points: covered,
+            limited_by_bound: by_bound,
+            limited_by_saturation: by_sat,
+            peak_lux,
+            peak_black_lux: peak_black,
+            room_lux: room,
+            certificate_points: cert.points(),
+            e_bound_lux: params.e_bound_lux,
+            limit_lux: limit,
+            scale,
+            rounds: enf.rounds,
+            dimmed_pixels: enf.dimmed_pixels,
+        },
+    })
+}
+
+#[cfg(test)]
+mod tests;

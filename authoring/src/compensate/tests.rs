@@ -1,0 +1,184 @@
+//! Tests of compensation on synthetic stages: the bound on the final frames (recomputed and
+//! true), the appearance where light allows, black pixels off the object, bad input.
+
+#![allow(clippy::needless_range_loop)] // index arithmetic over pixels and channels reads clearer
+
+use proptest::prelude::*;
+
+use super::synthetic::{SyntheticSpec, SyntheticStage, build, synthetic_stage};
+use super::*;
+
+/// A smooth colourful target over the camera image, linear 0..1.
+fn target(s: &SyntheticStage, seed: u64) -> LinearImage {
+    let cam = &s.model.camera;
+    let mut t = LinearImage::new(cam.width, cam.height).unwrap();
+    let ph = seed as f32 * 0.7;
+    for y in 0..cam.height {
+        for x in 0..cam.width {
+            let (u, v) = (x as f32 / cam.width as f32, y as f32 / cam.height as f32);
+            t.set(
+                x,
+                y,
+                [0.3 + 0.2 * (6.0 * u + ph).sin(), 0.35 + 0.2 * (5.0 * v - ph).cos(), 0.25 + 0.15 * u],
+            );
+        }
+    }
+    t
+}
+
+fn true_peak(s: &SyntheticStage, frames: &[RgbImage]) -> f64 {
+    s.true_lux(frames).iter().filter(|e| e[0].is_finite()).map(|e| bound_lux(*e)).fold(0.0, f64::max)
+}
+
+#[test]
+fn final_frames_respect_the_bound_recomputed_and_true() {
+    let s = synthetic_stage(3, 11);
+    let t = target(&s, 1);
+    for m in [Exponent::Finite(0.0), Exponent::Finite(1.0), Exponent::Finite(8.0), Exponent::Infinite] {
+        let p = Params::new(120.0, m, 0.05).unwrap();
+        let c = compensate(&s.model, &t, &p).unwrap();
+        assert!(c.stats.peak_lux <= p.limit(), "m {m}: {} > {}", c.stats.peak_lux, p.limit());
+        // The bound is active: the frames use the light they are allowed.
+        assert!(c.stats.peak_lux > 0.8 * p.limit(), "m {m}: peak {} far below", c.stats.peak_lux);
+        let tp = true_peak(&s, &c.frames);
+        assert!(tp <= p.e_bound_lux, "m {m}: true peak {tp}");
+    }
+}
+
+#[test]
+fn where_light_allows_the_visitor_sees_the_target() {
+    let spec = SyntheticSpec {
+        lux_error: 0.0,
+        camera: (64, 48),
+        projector: (64, 48),
+        painted: false,
+        ..SyntheticSpec::small(3, 4)
+    };
+    let s = build(&spec);
+    let t = target(&s, 2);
+    let p = Params::new(5000.0, Exponent::Finite(8.0), 0.05).unwrap();
+    let c = compensate(&s.model, &t, &p).unwrap();
+    let view = s.view(&c.frames);
+    let mut errs: Vec<f64> = Vec::new();
+    for i in 0..view.len() {
+        if c.lux[i] <= 0.0 || !c.weights[i * 3..i * 3 + 3].iter().any(|&w| w > 0.0) {
+            continue;
+        }
+        for ch in 0..3 {
+            let want = c.stats.scale * t.data[i][ch] as f64;
+            errs.push((view[i][ch] as f64 - want).abs() / want);
+        }
+    }
+    errs.sort_by(f64::total_cmp);
+    let median = errs[errs.len() / 2];
+    assert!(errs.len() > 1000);
+    assert!(median < 0.03, "median relative error {median}");
+}
+
+#[test]
+fn projector_pixels_lighting_no_object_point_stay_black() {
+    let s = synthetic_stage(2, 3);
+    let c = compensate(&s.model, &target(&s, 0), &Params::new(200.0, Exponent::Finite(5.0), 0.05).unwrap())
+        .unwrap();
+    for (k, frame) in c.frames.iter().enumerate() {
+        let p = &s.model.projectors[k];
+        let mut near = vec![false; (p.width * p.height) as usize];
+        for cc in &s.model.correspondences[k] {
+            if cc[0].is_finite() {
+                let (x0, y0) = (cc[0].floor() as i64, cc[1].floor() as i64);
+                for (x, y) in [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)] {
+                    if x >= 0 && y >= 0 && x < p.width as i64 && y < p.height as i64 {
+                        near[(y * p.width as i64 + x) as usize] = true;
+                    }
+                }
+            }
+        }
+        let mut lit = 0;
+        for (px, v) in frame.pixels().enumerate() {
+            if !near[px] {
+                assert_eq!(v.0, [0, 0, 0], "projector {k} pixel {px} lights no object point");
+            } else {
+                lit += (v.0 != [0, 0, 0]) as usize;
+            }
+        }
+        assert!(lit > 50, "projector {k} lights the object");
+    }
+}
+
+#[test]
+fn bad_input_is_refused_clearly() {
+    let s = synthetic_stage(2, 5);
+    let t = target(&s, 0);
+    let wrong = LinearImage::new(10, 10).unwrap();
+    let p = Params::new(100.0, Exponent::Finite(8.0), 0.05).unwrap();
+    let e = compensate(&s.model, &wrong, &p).unwrap_err();
+    assert!(e.to_string().contains("10x10") && e.to_string().contains("48x36"), "{e}");
+    for bad in [0.0, -5.0, f64::NAN, f64::INFINITY] {
+        let e = Params::new(bad, Exponent::Finite(1.0), 0.05).unwrap_err();
+        assert!(e.to_string().contains("> 0"), "{e}");
+    }
+    assert!(Params::new(100.0, Exponent::Finite(-1.0), 0.05).unwrap_err().to_string().contains(">= 0"));
+    assert!(Params::new(100.0, Exponent::Finite(1.0), 1.0).is_err());
+    // A bound below what black level alone gives.
+    let prep = Prepared::new(&s.model, 2).unwrap();
+    let black_peak =
+        prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
+    let p = Params::new(black_peak, Exponent::Infinite, 0.05).unwrap();
+    let e = compensate(&s.model, &t, &p).unwrap_err();
+    assert!(matches!(e, CompensateError::BlackAboveBound { .. }), "{e}");
+    assert!(e.to_string().contains("black level"), "{e}");
+    let mut no_gain = s.model.clone();
+    no_gain.gain.clear();
+    assert!(matches!(compensate(&no_gain, &t, &p), Err(CompensateError::NoGain { .. })));
+}
+
+#[test]
+fn result_does_not_depend_on_thread_count() {
+    let s = synthetic_stage(3, 9);
+    let t = target(&s, 3);
+    let p = Params::new(150.0, Exponent::Finite(8.0), 0.05).unwrap();
+    let run = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| compensate(&s.model, &t, &p).unwrap().frames)
+    };
+    assert_eq!(run(1), run(2));
+}
+
+fn arb_exponent() -> impl Strategy<Value = Exponent> {
+    prop_oneof![(0.0..12.0f64).prop_map(Exponent::Finite), Just(Exponent::Infinite)]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 24, ..ProptestConfig::default() })]
+
+    /// The guarantee: whatever the stage, target, m and bound, the irradiance recomputed from
+    /// the final frames never exceeds the limit, and the true irradiance never exceeds E_bound.
+    #[test]
+    fn recomputed_and_true_peak_never_exceed_the_bound(
+        seed in 0u64..10_000,
+        projectors in 1usize..=4,
+        m in arb_exponent(),
+        bound_factor in 1.05f64..40.0,
+        margin in 0.03f64..0.2,
+        clip in 0.0f64..0.05,
+        tseed in 0u64..100,
+        noise in 0.0f32..0.5,
+        reduction in 1u32..=3,
+    ) {
+        let s = synthetic_stage(projectors, seed);
+        let mut t = target(&s, tseed);
+        // Some high-frequency content so averaging and quantisation matter.
+        for (i, v) in t.data.iter_mut().enumerate() {
+            let h = ((i as u64).wrapping_mul(2654435761) ^ tseed) % 1000;
+            v.iter_mut().for_each(|c| *c = (*c + noise * (h as f32 / 1000.0 - 0.5)).clamp(0.0, 1.0));
+        }
+        let prep = Prepared::new(&s.model, 2).unwrap();
+        let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
+        let e_bound = black * bound_factor / (1.0 - margin);
+        let p = Params { e_bound_lux: e_bound, m, margin, clip_fraction: clip, reduction };
+        let c = compensate(&s.model, &t, &p).unwrap();
+        prop_assert!(c.stats.peak_lux <= p.limit());
+        let tp = true_peak(&s, &c.frames);
+        prop_assert!(tp <= e_bound, "true peak {} > E_bound {}", tp, e_bound);
+    }
+}

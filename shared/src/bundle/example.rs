@@ -1,0 +1,130 @@
+//! Synthetic bundles for tests, the benchmark and the fuzzer: flat geometry (certificate
+//! point `(u, v)` is lit by the same spot of every projector), smooth frames with a little
+//! texture, and a certificate whose coefficients the caller picks so a scene lands under or
+//! over the bound on purpose.
+
+use super::{BundleInfo, BundleWriter, ObjectInfo, PixelFormat, Projector, SceneKind};
+use crate::light::{CertificateMap, Footprint, LightCertificate, example_light_model};
+use crate::policy::{ExposurePolicy, Sensitivity};
+
+/// Shape of a synthetic bundle.
+#[derive(Clone, Debug)]
+pub struct ExampleSpec {
+    pub projectors: usize,
+    pub scenes: usize,
+    pub width: u32,
+    pub height: u32,
+    /// Certificate points every `step` projector pixels in x and y.
+    pub step: u32,
+    /// `L_ik` of every footprint; with E_bound 50 lx, margin 5 % and black 0.01, full white
+    /// from `n` projectors gives `n * 1.01 * lux_per_unit` lux.
+    pub lux_per_unit: f32,
+    /// Scales the frames' values (255 = reaches full white somewhere).
+    pub peak_value: u8,
+    pub version: u64,
+    pub created_unix_s: i64,
+    pub expires_unix_s: Option<i64>,
+    pub not_before_unix_s: Option<i64>,
+}
+
+impl ExampleSpec {
+    /// A small in-bound bundle: 2 projectors of 32x24, 2 scenes.
+    pub fn small() -> Self {
+        Self {
+            projectors: 2,
+            scenes: 2,
+            width: 32,
+            height: 24,
+            step: 4,
+            lux_per_unit: 15.0,
+            peak_value: 255,
+            version: 3,
+            created_unix_s: 1_700_000_000,
+            expires_unix_s: None,
+            not_before_unix_s: None,
+        }
+    }
+}
+
+/// Frame of scene `s`, projector `k`: a diagonal gradient with hashed texture, XRGB8888.
+pub fn example_frame(spec: &ExampleSpec, s: usize, k: usize) -> Vec<u8> {
+    let (w, h) = (spec.width as usize, spec.height as usize);
+    let mut out = Vec::with_capacity(w * h * 4);
+    for y in 0..h {
+        for x in 0..w {
+            let base = ((x + y + 17 * s + 29 * k) % (w + h)) as f32 / (w + h) as f32;
+            let hash = ((x as u32).wrapping_mul(0x9E37_79B9) ^ (y as u32).wrapping_mul(0x85EB_CA6B)) >> 29;
+            let v = ((base * 0.9 + hash as f32 / 80.0) * f32::from(spec.peak_value)).min(255.0) as u8;
+            out.extend_from_slice(&[v / 2, v, v.saturating_sub(10), 0]);
+        }
+    }
+    out
+}
+
+/// The certificate: points on a `step` grid, each lit by a `(2 step + 1)`-wide block.
+pub fn example_certificate(spec: &ExampleSpec) -> LightCertificate {
+    let (w, h, st) = (spec.width, spec.height, spec.step.max(1));
+    let mut centres = Vec::new();
+    let mut y = st / 2;
+    while y < h {
+        let mut x = st / 2;
+        while x < w {
+            centres.push((x, y));
+            x += st;
+        }
+        y += st;
+    }
+    let fp = |&(x, y): &(u32, u32)| Footprint {
+        x0: x.saturating_sub(st) as u16,
+        y0: y.saturating_sub(st) as u16,
+        x1: (x + st + 1).min(w) as u16,
+        y1: (y + st + 1).min(h) as u16,
+        lux_per_unit: spec.lux_per_unit,
+    };
+    LightCertificate {
+        points: centres.len() as u32,
+        point_px: centres.iter().map(|&(x, y)| [x as u16, y as u16]).collect(),
+        projectors: (0..spec.projectors)
+            .map(|_| CertificateMap { width: w, height: h, footprints: centres.iter().map(fp).collect() })
+            .collect(),
+    }
+}
+
+/// The manifest fields of a synthetic bundle.
+pub fn example_info(spec: &ExampleSpec) -> BundleInfo {
+    BundleInfo {
+        object: ObjectInfo { id: "test-jar-1".into(), name: "Synthetic jar".into() },
+        version: spec.version,
+        created_unix_s: spec.created_unix_s,
+        not_before_unix_s: spec.not_before_unix_s,
+        expires_unix_s: spec.expires_unix_s,
+        projectors: (0..spec.projectors)
+            .map(|k| Projector {
+                name: format!("p{k}"),
+                width: spec.width,
+                height: spec.height,
+                refresh_mhz: 60_000,
+                connector: Some(format!("HDMI-A-{}", k + 1)),
+                format: PixelFormat::Xrgb8888,
+            })
+            .collect(),
+        light: example_light_model(spec.projectors, 50.0),
+        policy: ExposurePolicy::cie157(Sensitivity::High),
+        generator: "restage-shared example".into(),
+    }
+}
+
+/// A writer holding the whole synthetic bundle (scene 0 "original", the rest restorations).
+pub fn example_writer(spec: &ExampleSpec) -> BundleWriter {
+    let mut w = BundleWriter::new(example_info(spec), example_certificate(spec));
+    for s in 0..spec.scenes {
+        let frames = (0..spec.projectors).map(|k| example_frame(spec, s, k)).collect();
+        let (id, kind) = if s == 0 {
+            ("original".to_string(), SceneKind::Original)
+        } else {
+            (format!("restored-{s}"), SceneKind::Restoration)
+        };
+        w.add_scene(&id, &id, kind, frames).expect("example frames fit");
+    }
+    w
+}

@@ -1,0 +1,430 @@
+//! Streaming verification of a bundle. [`BundleReader::open`] checks the header, the
+//! manifest's signature, validity times and rollback before anything else is read;
+//! [`BundleReader::verify`] then reads one section at a time, checks its hash before
+//! decompressing or decoding it, and recomputes every scene's peak irradiance from the
+//! certificate. Memory: the manifest, the certificate, one scene's per-point sums and one
+//! section (stored and decompressed) at a time.
+
+use std::io::{Read, Seek, SeekFrom};
+
+use ed25519_dalek::Signature;
+
+use super::{
+    BundleError, Compression, FORMAT_VERSION, HEADER_LEN, MAGIC, MAX_MANIFEST_LEN, MAX_SECTION_LEN, Manifest,
+    SIGNATURE_BLOCK_LEN, Section, SectionKind,
+};
+use crate::keys::{KEY_ID_LEN, KeyId, TrustStore};
+use crate::light::{LightCertificate, PeakIrradiance, SceneIrradiance, XrgbFrame, check_bound};
+
+/// Size caps applied before allocating.
+#[derive(Clone, Copy, Debug)]
+pub struct Limits {
+    pub max_manifest: u64,
+    pub max_section: u64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self { max_manifest: MAX_MANIFEST_LEN, max_section: MAX_SECTION_LEN }
+    }
+}
+
+/// What verification depends on besides the bytes and the trusted keys.
+#[derive(Clone, Copy)]
+pub struct VerifyOptions<'a> {
+    /// The one time (Unix seconds) taken at the start of loading; validity is checked
+    /// against it and nothing else reads a clock.
+    pub now_unix_s: i64,
+    /// The last version accepted for an object id (the appliance's ledger). The reader only
+    /// reads it: recording a new version is the caller's job, after `verify` returned Ok.
+    pub last_accepted: &'a dyn Fn(&str) -> Option<u64>,
+    pub limits: Limits,
+}
+
+impl std::fmt::Debug for VerifyOptions<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VerifyOptions")
+            .field("now_unix_s", &self.now_unix_s)
+            .field("limits", &self.limits)
+            .finish()
+    }
+}
+
+impl<'a> VerifyOptions<'a> {
+    /// No version accepted before, default limits.
+    pub fn at(now_unix_s: i64) -> Self {
+        Self { now_unix_s, last_accepted: &|_| None, limits: Limits::default() }
+    }
+}
+
+/// A bundle whose header, signature, validity and version were checked; sections not yet.
+#[derive(Debug)]
+pub struct BundleReader<R> {
+    src: R,
+    manifest: Manifest,
+    manifest_hash: [u8; 32],
+    key_id: KeyId,
+    /// Absolute offset of each section.
+    offsets: Vec<u64>,
+    file_len: u64,
+}
+
+/// A section whose hash was checked, decompressed. Callers keep it (e.g. copy a frame into
+/// a scan-out buffer) but must not *use* it until `verify` returned Ok: the scene's bound
+/// check completes only after its last frame.
+#[derive(Debug)]
+pub struct VerifiedSection<'a> {
+    pub index: usize,
+    pub kind: SectionKind,
+    pub bytes: &'a [u8],
+}
+
+/// A fully verified bundle: manifest, certificate, each scene's recomputed peak, and the
+/// source for reading frames again later (each re-read is hashed again).
+#[derive(Debug)]
+pub struct VerifiedBundle<R> {
+    pub manifest: Manifest,
+    pub certificate: LightCertificate,
+    /// Per scene, in manifest order: the peak irradiance recomputed from the certificate,
+    /// already checked against the bound. Charge exposure at these values.
+    pub peaks: Vec<PeakIrradiance>,
+    /// BLAKE3 of the manifest bytes: identifies the exact bundle (two different bundles
+    /// with one version have different hashes).
+    pub manifest_hash: [u8; 32],
+    pub key_id: KeyId,
+    src: R,
+    offsets: Vec<u64>,
+}
+
+fn read_exact_at<R: Read>(
+    src: &mut R,
+    buf: &mut [u8],
+    what: &str,
+    need: u64,
+    file_len: u64,
+) -> Result<(), BundleError> {
+    src.read_exact(buf).map_err(|e| match e.kind() {
+        std::io::ErrorKind::UnexpectedEof => BundleError::Truncated { what: what.to_owned(), need, file_len },
+        _ => BundleError::Io(e),
+    })
+}
+
+impl<R: Read + Seek> BundleReader<R> {
+    /// Reads and checks, in order: header (magic, format, flags, manifest length against the
+    /// cap before allocating), the signature over header and manifest with a trusted key
+    /// (`verify_strict`), the manifest (decode, key id, consistency), validity against
+    /// `opts.now_unix_s`, rollback against `opts.last_accepted`, and the file's length
+    /// against the sections' lengths (truncated or appended files are refused here).
+    pub fn open(mut src: R, trust: &TrustStore, opts: &VerifyOptions<'_>) -> Result<Self, BundleError> {
+        let file_len = src.seek(SeekFrom::End(0))?;
+        src.seek(SeekFrom::Start(0))?;
+        let mut header = [0u8; HEADER_LEN as usize];
+        read_exact_at(&mut src, &mut header, "the header", HEADER_LEN, file_len)?;
+        if &header[..8] != MAGIC {
+            return Err(BundleError::BadMagic);
+        }
+        let u32_at = |o: usize| u32::from_le_bytes(header[o..o + 4].try_into().expect("4 bytes"));
+        let u64_at = |o: usize| u64::from_le_bytes(header[o..o + 8].try_into().expect("8 bytes"));
+        let found = u32_at(8);
+        if found != FORMAT_VERSION {
+            return Err(BundleError::UnsupportedVersion { found });
+        }
+        let flags = u32_at(12);
+        if flags != 0 {
+            return Err(BundleError::ReservedFlags { flags });
+        }
+        let manifest_len = u64_at(16);
+        if manifest_len > opts.limits.max_manifest || manifest_len == 0 {
+            return Err(BundleError::ManifestTooLarge { len: manifest_len, max: opts.limits.max_manifest });
+        }
+        let sig_len = u64_at(24);
+        if sig_len != SIGNATURE_BLOCK_LEN {
+            return Err(BundleError::SignatureLength { len: sig_len });
+        }
+        // Both lengths are capped, so this cannot overflow.
+        let signed_end = HEADER_LEN + manifest_len + SIGNATURE_BLOCK_LEN;
+        if file_len < signed_end {
+            return Err(BundleError::Truncated {
+                what: "the manifest and signature".into(),
+                need: signed_end,
+                file_len,
+            });
+        }
+        // Header and manifest in one buffer: exactly the bytes the signature covers.
+        let mut signed = vec![0u8; (HEADER_LEN + manifest_len) as usize];
+        signed[..HEADER_LEN as usize].copy_from_slice(&header);
+        read_exact_at(&mut src, &mut signed[HEADER_LEN as usize..], "the manifest", signed_end, file_len)?;
+        let mut block = [0u8; SIGNATURE_BLOCK_LEN as usize];
+        read_exact_at(&mut src, &mut block, "the signature block", signed_end, file_len)?;
+        let mut id = [0u8; KEY_ID_LEN];
+        id.copy_from_slice(&block[..KEY_ID_LEN]);
+        let key_id = KeyId(id);
+        let trusted = trust.get(&key_id).ok_or(BundleError::UnknownKey { key_id })?;
+        let sig_bytes: [u8; 64] = block[KEY_ID_LEN..].try_into().expect("64 bytes");
+        let signature = Signature::from_bytes(&sig_bytes);
+        trusted
+            .key
+            .verify_strict(&signed, &signature)
+            .map_err(|_| BundleError::BadSignature { key_id, origin: trusted.origin.clone() })?;
+
+        // Only signed bytes reach the decoder.
+        let manifest_bytes = &signed[HEADER_LEN as usize..];
+        let (manifest, rest): (Manifest, &[u8]) = postcard::take_from_bytes(manifest_bytes)
+            .map_err(|e| BundleError::ManifestDecode(e.to_string()))?;
+        if !rest.is_empty() {
+            return Err(BundleError::ManifestDecode(format!("{} bytes after the manifest", rest.len())));
+        }
+        if manifest.key_id != key_id {
+            return Err(BundleError::KeyIdMismatch { manifest: manifest.key_id, block: key_id });
+        }
+        manifest.validate(opts.limits.max_section).map_err(BundleError::ManifestInvalid)?;
+        let now = opts.now_unix_s;
+        if let Some(not_before) = manifest.not_before_unix_s
+            && now < not_before
+        {
+            return Err(BundleError::NotYetValid { not_before, now });
+        }
+        if let Some(expires) = manifest.expires_unix_s
+            && now >= expires
+        {
+            return Err(BundleError::Expired { expires, now });
+        }
+        if let Some(accepted) = (opts.last_accepted)(&manifest.object.id)
+            && manifest.version < accepted
+        {
+            return Err(BundleError::Rollback {
+                object: manifest.object.id.clone(),
+                version: manifest.version,
+                accepted,
+            });
+        }
+        let mut offsets = Vec::with_capacity(manifest.sections.len());
+        let mut at = signed_end;
+        for (i, s) in manifest.sections.iter().enumerate() {
+            offsets.push(at);
+            at = at
+                .checked_add(s.stored_len)
+                .ok_or_else(|| BundleError::ManifestInvalid("sections overflow u64".into()))?;
+            if at > file_len {
+                return Err(BundleError::Truncated {
+                    what: format!("section {i} ({:?})", s.kind),
+                    need: at,
+                    file_len,
+                });
+            }
+        }
+        if file_len > at {
+            return Err(BundleError::TrailingBytes { extra: file_len - at });
+        }
+        let manifest_hash = *blake3::hash(manifest_bytes).as_bytes();
+        Ok(Self { src, manifest, manifest_hash, key_id, offsets, file_len })
+    }
+
+    /// The verified manifest (signature, validity and version already checked).
+    pub fn manifest(&self) -> &Manifest {
+        &self.manifest
+    }
+
+    /// Reads every section in order, checks its hash, decompresses it, passes it to `keep`,
+    /// decodes and checks the certificate, and refuses any scene whose recomputed peak
+    /// irradiance exceeds the light model's allowed lux. Returns the verified bundle only
+    /// if everything passed.
+    pub fn verify<F>(mut self, mut keep: F) -> Result<VerifiedBundle<R>, BundleError>
+    where
+        F: FnMut(VerifiedSection<'_>) -> Result<(), BundleError>,
+    {
+        self.src.seek(SeekFrom::Start(self.offsets.first().copied().unwrap_or(self.file_len)))?;
+        let mut stored = Vec::new();
+        let mut raw = Vec::new();
+        let m = &self.manifest;
+        let file_len = self.file_len;
+        let offsets = &self.offsets;
+        let read = |src: &mut R, i: usize, stored: &mut Vec<u8>, raw: &mut Vec<u8>| {
+            let end = offsets[i] + m.sections[i].stored_len;
+            read_section(src, i, &m.sections[i], end, file_len, stored, raw)
+        };
+
+        read(&mut self.src, 0, &mut stored, &mut raw)?;
+        let bytes = section_bytes(&m.sections[0], &stored, &raw);
+        let certificate = LightCertificate::from_bytes(bytes)?;
+        let sizes: Vec<(u32, u32)> = m.projectors.iter().map(|p| (p.width, p.height)).collect();
+        certificate.validate_for(&m.light, &sizes)?;
+        keep(VerifiedSection { index: 0, kind: m.sections[0].kind, bytes })?;
+
+        let mut peaks = Vec::with_capacity(m.scenes.len());
+        for (s, scene) in m.scenes.iter().enumerate() {
+            let mut acc = SceneIrradiance::new(&m.light, &certificate)?;
+            for (k, p) in m.projectors.iter().enumerate() {
+                let i = m.frame_section_index(s, k);
+                read(&mut self.src, i, &mut stored, &mut raw)?;
+                let bytes = section_bytes(&m.sections[i], &stored, &raw);
+                acc.add(k, XrgbFrame { width: p.width, height: p.height, xrgb: bytes })?;
+                keep(VerifiedSection { index: i, kind: m.sections[i].kind, bytes })?;
+            }
+            let peak = acc.finish()?;
+            check_bound(&m.light, &scene.id, &peak)?;
+            peaks.push(peak);
+        }
+        for i in m.frame_section_index(m.scenes.len(), 0)..m.sections.len() {
+            read(&mut self.src, i, &mut stored, &mut raw)?;
+            let bytes = section_bytes(&m.sections[i], &stored, &raw);
+            keep(VerifiedSection { index: i, kind: m.sections[i].kind, bytes })?;
+        }
+        // The file may not have grown since `open` measured it.
+        let mut probe = [0u8; 1];
+        if self.src.read(&mut probe)? != 0 {
+            let end = self.src.seek(SeekFrom::End(0))?;
+            return Err(BundleError::TrailingBytes { extra: end - self.file_len });
+        }
+        Ok(VerifiedBundle {
+            manifest: self.manifest,
+            certificate,
+            peaks,
+            manifest_hash: self.manifest_hash,
+            key_id: self.key_id,
+            src: self.src,
+            offsets: self.offsets,
+        })
+    }
+}
+
+fn section_bytes<'b>(s: &Section, stored: &'b [u8], raw: &'b [u8]) -> &'b [u8] {
+    match s.compression {
+        Compression::None => stored,
+        Compression::Zstd => raw,
+    }
+}
+
+/// Reads section `i` from the current position into `stored`, checks its hash, and
+/// decompresses it into `raw` when compressed.
+fn read_section<R: Read>(
+    src: &mut R,
+    i: usize,
+    s: &Section,
+    end: u64,
+    file_len: u64,
+    stored: &mut Vec<u8>,
+    raw: &mut Vec<u8>,
+) -> Result<(), BundleError> {
+    // Lengths were capped by `Manifest::validate` and checked against the file's length.
+    stored.clear();
+    stored.resize(s.stored_len as usize, 0);
+    read_exact_at(src, stored, &format!("section {i} ({:?})", s.kind), end, file_len)?;
+    if blake3::hash(stored).as_bytes() != &s.blake3 {
+        return Err(BundleError::SectionHash { index: i, kind: s.kind });
+    }
+    if s.compression == Compression::Zstd {
+        raw.clear();
+        raw.resize(s.raw_len as usize, 0);
+        let bad =
+            |problem: String| BundleError::Decompress { index: i, kind: s.kind, raw_len: s.raw_len, problem };
+        let n =
+            zstd::bulk::decompress_to_buffer(stored, raw.as_mut_slice()).map_err(|e| bad(e.to_string()))?;
+        if n as u64 != s.raw_len {
+            return Err(bad(format!("got {n} bytes")));
+        }
+    }
+    Ok(())
+}
+
+impl<R: Read + Seek> VerifiedBundle<R> {
+    /// Reads section `index` again (e.g. a frame just before it is shown), checks its hash
+    /// against the verified manifest, and returns its decompressed bytes. A file changed
+    /// since verification gives [`BundleError::Changed`], never different bytes.
+    pub fn read_section(&mut self, index: usize) -> Result<Vec<u8>, BundleError> {
+        let Some(s) = self.manifest.sections.get(index).copied() else {
+            return Err(BundleError::NoSuchSection { index, count: self.manifest.sections.len() });
+        };
+        self.src.seek(SeekFrom::Start(self.offsets[index]))?;
+        let (mut stored, mut raw) = (Vec::new(), Vec::new());
+        let end = self.offsets[index] + s.stored_len;
+        match read_section(&mut self.src, index, &s, end, end, &mut stored, &mut raw) {
+            Ok(()) => Ok(if s.compression == Compression::None { stored } else { raw }),
+            Err(BundleError::SectionHash { .. } | BundleError::Truncated { .. }) => {
+                Err(BundleError::Changed { index })
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Scene `scene`'s frame for projector `projector` (re-read and re-hashed).
+    pub fn read_frame(&mut self, scene: usize, projector: usize) -> Result<Vec<u8>, BundleError> {
+        if scene >= self.manifest.scenes.len() || projector >= self.manifest.projectors.len() {
+            return Err(BundleError::NoSuchSection {
+                index: usize::MAX,
+                count: self.manifest.sections.len(),
+            });
+        }
+        self.read_section(self.manifest.frame_section_index(scene, projector))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::io::Cursor;
+
+    use super::*;
+    use crate::bundle::example::{ExampleSpec, example_frame, example_writer};
+    use crate::keys::signing_key_from_seed;
+
+    fn trust() -> (ed25519_dalek::SigningKey, TrustStore) {
+        let k = signing_key_from_seed([9; 32]);
+        let mut t = TrustStore::new();
+        t.insert(k.verifying_key(), "test");
+        (k, t)
+    }
+
+    #[test]
+    fn round_trip_plain_and_zstd() {
+        let (key, trust) = trust();
+        let spec = ExampleSpec::small();
+        for zstd in [false, true] {
+            let mut w = example_writer(&spec);
+            w.set_preview("original", b"\x89PNG not really".to_vec()).unwrap();
+            let w = if zstd { w.zstd(3) } else { w };
+            let mut bytes = Vec::new();
+            let written = w.write(&key, &mut bytes).unwrap();
+            assert_eq!(written.sections.iter().any(|s| s.compression == Compression::Zstd), zstd);
+            let r =
+                BundleReader::open(Cursor::new(bytes), &trust, &VerifyOptions::at(1_800_000_000)).unwrap();
+            assert_eq!(r.manifest(), &written);
+            let mut kept = Vec::new();
+            let mut v = r
+                .verify(|s| {
+                    kept.push((s.index, s.bytes.len()));
+                    Ok(())
+                })
+                .unwrap();
+            assert_eq!(kept.len(), written.sections.len());
+            assert_eq!(v.peaks.len(), 2);
+            assert!(v.peaks.iter().all(|p| p.lux > 0.0 && p.lux <= 47.5));
+            assert_eq!(v.read_frame(1, 1).unwrap(), example_frame(&spec, 1, 1));
+            assert_eq!(v.read_section(written.sections.len() - 1).unwrap(), b"\x89PNG not really");
+        }
+    }
+
+    #[test]
+    fn a_file_changed_after_verification_is_not_read() {
+        let (key, trust) = trust();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("b.restage");
+        let mut bytes = Vec::new();
+        example_writer(&ExampleSpec::small()).write(&key, &mut bytes).unwrap();
+        std::fs::write(&path, &bytes).unwrap();
+        let f = std::fs::File::open(&path).unwrap();
+        let mut v = BundleReader::open(f, &trust, &VerifyOptions::at(0)).unwrap().verify(|_| Ok(())).unwrap();
+        let last = bytes.len() - 5;
+        bytes[last] ^= 1;
+        std::fs::write(&path, &bytes).unwrap();
+        assert!(matches!(v.read_frame(1, 1), Err(BundleError::Changed { .. })));
+        v.read_frame(0, 0).unwrap();
+    }
+
+    #[test]
+    fn writer_refuses_an_over_bound_scene() {
+        let (key, _) = trust();
+        let spec = ExampleSpec { lux_per_unit: 40.0, ..ExampleSpec::small() };
+        let err = example_writer(&spec).write(&key, Vec::new()).unwrap_err();
+        assert!(matches!(err, BundleError::Light(crate::light::LightError::OverBound { .. })), "{err}");
+    }
+}
