@@ -9,6 +9,7 @@ pub mod color;
 pub mod compensate;
 pub mod contact_sheet;
 pub mod eval;
+pub mod export;
 pub mod hw;
 pub mod imgio;
 pub mod patterns;

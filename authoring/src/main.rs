@@ -20,8 +20,18 @@ enum Command {
     Demo(cli::demo::Args),
     /// Render what the camera sees when the projectors show given frames (true physics).
     Render(cli::render::Args),
+    /// Classify a photo's pixels into the picked paint colours (paper §4.1).
+    Classify(cli::classify::ClassifyArgs),
     /// One frame per projector for a restored image, under the light bound (paper §5.1).
     Compensate(cli::compensate::Args),
+    /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
+    Keygen(cli::keygen::KeygenArgs),
+    /// Sign compensation's frames and light certificate into a bundle.
+    Bundle(cli::bundle::BundleArgs),
+    /// Summarise a bundle: scenes, projectors, policy, peak lux, hashes.
+    Inspect(cli::inspect::InspectArgs),
+    /// Verify a bundle exactly as the appliance does.
+    Verify(cli::verify::VerifyArgs),
 }
 
 fn main() -> Result<()> {
@@ -36,6 +46,11 @@ fn main() -> Result<()> {
         Command::Simulate(args) => cli::simulate::run(&args),
         Command::Demo(args) => cli::demo::run(&args),
         Command::Render(args) => cli::render::run(&args),
+        Command::Classify(args) => cli::classify::run(&args),
         Command::Compensate(a) => cli::compensate::run(a),
+        Command::Keygen(a) => cli::keygen::run(&a),
+        Command::Bundle(a) => cli::bundle::run(&a),
+        Command::Inspect(a) => cli::inspect::run(&a),
+        Command::Verify(a) => cli::verify::run(&a),
     }
 }

@@ -4,8 +4,17 @@
 //! Output contract (read by the restoration step): a [`LabelMap`] (`labels.png`, 8-bit grey,
 //! value = class index, [`MASKED`] = not object) and a [`Palette`] (`palette.json`).
 
+pub mod baseline;
+pub mod calibrated;
 mod error;
+pub mod kmeans;
 mod palette;
+pub mod picks;
+pub mod synthetic;
+pub mod weights;
 
+pub use calibrated::{Classification, ClassifyOptions, classify};
 pub use error::ClassifyError;
-pub use palette::{LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, output_paths};
+pub use palette::{LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, output_paths, preview};
+pub use picks::{PickColour, PickRect, Picks, picks_from_labels};
+pub use weights::{WeightFit, fit_weights};

@@ -111,6 +111,11 @@ pub struct Palette {
     /// Weights `[a1, a2, a3]` of `D = a1 dx^2 + a2 dy^2 + a3 dY^2` (Eq. 1 with the brief's fix);
     /// positive, summing to one.
     pub weights: [f64; 3],
+    /// x, y and Y are divided by these before the weighted distance: the picks' pooled
+    /// within-colour standard deviation per channel, so that a channel counts in units of its
+    /// own spread over the object (shading, grain, noise) and the weights do not depend on
+    /// exposure. See `classify::calibrated`.
+    pub channel_scale: [f64; 3],
     /// k-means iterations run.
     pub iterations: u32,
     /// Whether k-means stopped because no label changed (rather than at the iteration cap).
@@ -151,6 +156,20 @@ impl Palette {
     }
 }
 
+/// False-colour rendition of a label map: each class in its display colour
+/// ([`Palette::display_colour`]), masked pixels black, labels without a class magenta.
+pub fn preview(labels: &LabelMap, palette: &Palette) -> image::RgbImage {
+    let colours: Vec<[u8; 3]> = (0..palette.classes.len()).map(|i| palette.display_colour(i)).collect();
+    let mut out = image::RgbImage::new(labels.width, labels.height);
+    for (p, &l) in out.pixels_mut().zip(&labels.data) {
+        p.0 = match l {
+            MASKED => [0, 0, 0],
+            l => colours.get(l as usize).copied().unwrap_or([255, 0, 255]),
+        };
+    }
+    out
+}
+
 /// Paths of the classification's output files inside its output directory.
 pub fn output_paths(dir: &Path) -> (PathBuf, PathBuf, PathBuf) {
     (dir.join("labels.png"), dir.join("palette.json"), dir.join("preview.png"))
@@ -180,6 +199,7 @@ mod tests {
                 },
             ],
             weights: [0.4, 0.4, 0.2],
+            channel_scale: [0.003, 0.003, 0.05],
             iterations: 3,
             converged: true,
         }

@@ -1,0 +1,301 @@
+//! Ours (paper §4.1): representatives from the picks, Eq. 1's weights by LM, then k-means in
+//! xyY under those weights, seeded by the representatives.
+//!
+//! Units (the paper leaves them open): each channel of xyY is divided by the picks' pooled
+//! within-colour standard deviation of that channel ([`Palette::channel_scale`]) before
+//! Eq. 1 is applied. In raw xyY, luminance differences (tenths) dwarf chromaticity
+//! differences (hundredths), and shading across a curved object varies luminance far more
+//! than chromaticity; in units of each channel's own spread the LM fit weighs what actually
+//! separates the colours on this object. With one pick per colour there is no spread to
+//! measure, and the scales fall back to `[1, 1, brightest representative's Y]`.
+
+use tracing::{info, warn};
+
+use super::kmeans::{Features, lloyd};
+use super::weights::{fit_weights, pair_differences};
+use super::{ClassifyError, LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, Picks};
+use crate::color::{D65_XY, SRGB_TO_XYZ, linear_srgb_to_xyy};
+use crate::imgio::LinearImage;
+
+/// Most colour classes (label 255 is reserved for "not object").
+pub const MAX_CLASSES: usize = 254;
+
+/// Two representatives closer than this in (x, y, Y / y_scale) are the same colour.
+pub const MIN_SEPARATION: f64 = 1e-3;
+
+#[derive(Clone, Copy, Debug)]
+pub struct ClassifyOptions {
+    /// Cap on k-means iterations (it usually converges in a handful).
+    pub max_iterations: u32,
+}
+
+impl Default for ClassifyOptions {
+    fn default() -> Self {
+        Self { max_iterations: 50 }
+    }
+}
+
+/// Label map plus palette.
+#[derive(Clone, Debug)]
+pub struct Classification {
+    pub labels: LabelMap,
+    pub palette: Palette,
+}
+
+/// Per-pixel xyY as f32, with black at the D65 chromaticity (see [`crate::color::xyz_to_xyy`]).
+#[inline]
+pub fn xyy_f32(rgb: [f32; 3]) -> [f32; 3] {
+    let m = SRGB_TO_XYZ.map(|r| r.map(|v| v as f32));
+    let x = m[0][0] * rgb[0] + m[0][1] * rgb[1] + m[0][2] * rgb[2];
+    let y = m[1][0] * rgb[0] + m[1][1] * rgb[1] + m[1][2] * rgb[2];
+    let z = m[2][0] * rgb[0] + m[2][1] * rgb[1] + m[2][2] * rgb[2];
+    let s = x + y + z;
+    if s > 1e-9 { [x / s, y / s, y] } else { [D65_XY[0] as f32, D65_XY[1] as f32, y] }
+}
+
+/// Pooled within-colour standard deviation of the picks' x, y and Y (floored so that no
+/// channel's scale vanishes); `[1, 1, y_max]` when no colour has two picks.
+fn channel_scale(photo: &LinearImage, idx: &[Vec<usize>], reps: &[[f64; 3]], y_max: f64) -> [f64; 3] {
+    let mut ss = [0f64; 3];
+    let mut dof = 0usize;
+    for (pix, rep) in idx.iter().zip(reps) {
+        for &i in pix {
+            let v = xyy_f32(photo.data[i]);
+            for j in 0..3 {
+                ss[j] += (v[j] as f64 - rep[j]).powi(2);
+            }
+        }
+        dof += pix.len() - 1;
+    }
+    if dof == 0 {
+        return [1.0, 1.0, y_max];
+    }
+    let floor = [1e-4, 1e-4, 1e-4 * y_max];
+    [0, 1, 2].map(|j| (ss[j] / dof as f64).sqrt().max(floor[j]))
+}
+
+/// Mean linear RGB of the given pixels.
+fn mean_rgb(photo: &LinearImage, idx: &[usize]) -> [f64; 3] {
+    let mut s = [0f64; 3];
+    for &i in idx {
+        for (acc, v) in s.iter_mut().zip(photo.data[i]) {
+            *acc += v as f64;
+        }
+    }
+    s.map(|v| v / idx.len() as f64)
+}
+
+/// Builds the initial label buffer from an optional object mask (true = object).
+pub fn initial_labels(n: usize, mask: Option<&[bool]>) -> Result<Vec<u8>, ClassifyError> {
+    let labels: Vec<u8> = match mask {
+        Some(m) => m.iter().map(|&inside| if inside { 0 } else { MASKED }).collect(),
+        None => vec![0; n],
+    };
+    if labels.iter().all(|&l| l == MASKED) {
+        return Err(ClassifyError::EmptyMask);
+    }
+    Ok(labels)
+}
+
+/// Classifies every object pixel of `photo` into one of the picked colours.
+/// `mask`, if given, has one entry per pixel (true = object); other pixels get [`MASKED`].
+pub fn classify(
+    photo: &LinearImage,
+    picks: &Picks,
+    mask: Option<&[bool]>,
+    opts: &ClassifyOptions,
+) -> Result<Classification, ClassifyError> {
+    let (w, h) = (photo.width, photo.height);
+    let k = picks.colours.len();
+    if !(2..=MAX_CLASSES).contains(&k) {
+        return Err(ClassifyError::ClassCount { count: k, max: MAX_CLASSES });
+    }
+    if let Some(m) = mask
+        && m.len() != photo.data.len()
+    {
+        return Err(ClassifyError::LabelSize {
+            got: m.len(),
+            expected: photo.data.len(),
+            width: w,
+            height: h,
+        });
+    }
+    let idx = picks.pixel_indices(w, h)?;
+    let reps_rgb: Vec<[f64; 3]> = idx.iter().map(|i| mean_rgb(photo, i)).collect();
+    let reps_xyy: Vec<[f64; 3]> = reps_rgb.iter().map(|&c| linear_srgb_to_xyy(c)).collect();
+    let y_max = reps_xyy.iter().map(|c| c[2]).fold(0.0, f64::max).max(1e-6);
+    let unit: Vec<[f64; 3]> = reps_xyy.iter().map(|c| [c[0], c[1], c[2] / y_max]).collect();
+
+    // Same representative: no distance can separate them (and 1/D has no value).
+    let mut p = 0;
+    for i in 0..k {
+        for j in i + 1..k {
+            let s = pair_differences(&[unit[i], unit[j]])[0];
+            let distance = (s[0] + s[1] + s[2]).sqrt();
+            if distance < MIN_SEPARATION {
+                return Err(ClassifyError::Degenerate {
+                    a: picks.colours[i].name.clone(),
+                    b: picks.colours[j].name.clone(),
+                    distance,
+                });
+            }
+            p += 1;
+        }
+    }
+    debug_assert_eq!(p, k * (k - 1) / 2);
+    let chroma_spread =
+        unit.iter().map(|c| (c[0] - unit[0][0]).abs() + (c[1] - unit[0][1]).abs()).sum::<f64>();
+    if chroma_spread < 1e-4 {
+        warn!("the picked colours share one chromaticity (greyscale photo?): classifying by luminance");
+    }
+    let scale = channel_scale(photo, &idx, &reps_xyy, y_max);
+    let scaled: Vec<[f64; 3]> = reps_xyy.iter().map(|c| [0, 1, 2].map(|j| c[j] / scale[j])).collect();
+
+    let fit = fit_weights(&scaled);
+    let sw: [f32; 3] = [0, 1, 2].map(|j| (fit.weights[j].sqrt() / scale[j]) as f32);
+    info!(weights = ?fit.weights, lm_iterations = fit.iterations, "fitted Eq. 1 weights");
+
+    let features = Features::from_pixels(&photo.data, |rgb| {
+        let v = xyy_f32(rgb);
+        [v[0] * sw[0], v[1] * sw[1], v[2] * sw[2]]
+    });
+    let init: Vec<[f32; 3]> = reps_xyy.iter().map(|c| [0, 1, 2].map(|j| c[j] as f32 * sw[j])).collect();
+    let mut labels = initial_labels(photo.data.len(), mask)?;
+    let res = lloyd(&features, &init, &mut labels, opts.max_iterations);
+    let labels = LabelMap::from_vec(w, h, labels)?;
+    let means = class_mean_rgb(photo, &labels, k);
+    let classes = picks
+        .colours
+        .iter()
+        .enumerate()
+        .map(|(i, c)| PaletteClass {
+            name: c.name.clone(),
+            representative_xyy: reps_xyy[i],
+            mean_linear_rgb: if res.counts[i] > 0 { means[i] } else { reps_rgb[i] },
+            pixels: res.counts[i],
+            display_srgb8: c.display_srgb8,
+        })
+        .collect();
+    let palette = Palette {
+        version: PALETTE_VERSION,
+        classes,
+        weights: fit.weights,
+        channel_scale: scale,
+        iterations: res.iterations,
+        converged: res.converged,
+    };
+    Ok(Classification { labels, palette })
+}
+
+/// Mean linear RGB of each class's pixels (zero for an empty class); chunked, deterministic.
+pub fn class_mean_rgb(photo: &LinearImage, labels: &LabelMap, k: usize) -> Vec<[f64; 3]> {
+    use rayon::prelude::*;
+    let partials: Vec<Vec<[f64; 4]>> = labels
+        .data
+        .par_chunks(1 << 15)
+        .zip(photo.data.par_chunks(1 << 15))
+        .map(|(lab, px)| {
+            let mut s = vec![[0f64; 4]; k];
+            for (&l, p) in lab.iter().zip(px) {
+                if let Some(t) = s.get_mut(l as usize) {
+                    for c in 0..3 {
+                        t[c] += p[c] as f64;
+                    }
+                    t[3] += 1.0;
+                }
+            }
+            s
+        })
+        .collect();
+    let mut total = vec![[0f64; 4]; k];
+    for s in partials {
+        for (t, v) in total.iter_mut().zip(&s) {
+            for c in 0..4 {
+                t[c] += v[c];
+            }
+        }
+    }
+    total
+        .iter()
+        .map(|t| if t[3] > 0.0 { [t[0] / t[3], t[1] / t[3], t[2] / t[3]] } else { [0.0; 3] })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::classify::picks_from_labels;
+    use crate::classify::synthetic::{POTTERY_PAINTS, painted_pattern};
+
+    fn names(k: usize) -> Vec<String> {
+        (0..k).map(|i| format!("paint {i}")).collect()
+    }
+
+    fn accuracy(a: &LabelMap, b: &LabelMap) -> f64 {
+        a.data.iter().zip(&b.data).filter(|(x, y)| x == y).count() as f64 / a.data.len() as f64
+    }
+
+    #[test]
+    fn classifies_a_shaded_noisy_pattern() {
+        let scene = painted_pattern(160, 120, &POTTERY_PAINTS, 0.04, 7).unwrap();
+        let picks = picks_from_labels(&scene.truth, &names(5), &[], 4, 1).unwrap();
+        let out = classify(&scene.photo, &picks, None, &ClassifyOptions::default()).unwrap();
+        let acc = accuracy(&out.labels, &scene.truth);
+        assert!(acc > 0.99, "accuracy {acc}");
+        let p = &out.palette;
+        assert!(p.converged && p.iterations >= 2, "{p:?}");
+        assert!((p.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12 && p.weights.iter().all(|&w| w > 0.0));
+        assert_eq!(p.classes.iter().map(|c| c.pixels).sum::<u64>(), 160 * 120);
+        // Deterministic, whatever the thread count.
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let again =
+            pool.install(|| classify(&scene.photo, &picks, None, &ClassifyOptions::default())).unwrap();
+        assert_eq!(again.labels, out.labels);
+        assert_eq!(again.palette, out.palette);
+    }
+
+    #[test]
+    fn mask_excludes_pixels_and_greyscale_is_classified_by_luminance() {
+        let greys = [[0.01f32; 3], [0.12; 3], [0.8; 3]];
+        let scene = painted_pattern(90, 60, &greys, 0.03, 3).unwrap();
+        let picks = picks_from_labels(&scene.truth, &names(3), &[], 3, 2).unwrap();
+        let mask: Vec<bool> = (0..90 * 60).map(|i| i % 90 < 80).collect();
+        let out = classify(&scene.photo, &picks, Some(&mask), &ClassifyOptions::default()).unwrap();
+        assert!(out.palette.weights[2] > 0.9, "{:?}", out.palette.weights);
+        for (i, &l) in out.labels.data.iter().enumerate() {
+            if mask[i] {
+                assert_eq!(l, scene.truth.data[i], "pixel {i}");
+            } else {
+                assert_eq!(l, MASKED);
+            }
+        }
+        let none = vec![false; 90 * 60];
+        let err = classify(&scene.photo, &picks, Some(&none), &ClassifyOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("no pixel"), "{err}");
+    }
+
+    #[test]
+    fn bad_picks_are_refused_clearly() {
+        let scene = painted_pattern(40, 30, &POTTERY_PAINTS[..3], 0.02, 5).unwrap();
+        let mut picks = picks_from_labels(&scene.truth, &names(3), &[], 2, 2).unwrap();
+        // Fewer picks than colours: one colour lost its pixels.
+        let mut fewer = picks.clone();
+        fewer.colours[1].pixels.clear();
+        let err = classify(&scene.photo, &fewer, None, &ClassifyOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("'paint 1' has no picked pixels"), "{err}");
+        // A single colour is not a classification.
+        let mut one = picks.clone();
+        one.colours.truncate(1);
+        let err = classify(&scene.photo, &one, None, &ClassifyOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("expected 2..=254"), "{err}");
+        // Outside the image.
+        let mut outside = picks.clone();
+        outside.colours[0].pixels.push([40, 3]);
+        let err = classify(&scene.photo, &outside, None, &ClassifyOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("(40, 3)") && err.to_string().contains("40x30"), "{err}");
+        // Two colours with the same representative: the same pixels picked for both.
+        picks.colours[2].pixels = picks.colours[0].pixels.clone();
+        let err = classify(&scene.photo, &picks, None, &ClassifyOptions::default()).unwrap_err();
+        assert!(err.to_string().contains("'paint 0' and 'paint 2' have the same representative"), "{err}");
+    }
+}
