@@ -13,5 +13,6 @@ pub mod export;
 pub mod hw;
 pub mod imgio;
 pub mod patterns;
+pub mod restore;
 pub mod stage_model;
 pub mod stage_sim;
