@@ -8,6 +8,7 @@ pub mod demo;
 pub mod inspect;
 pub mod keygen;
 pub mod render;
+pub mod restore;
 pub mod simulate;
 pub mod verify;
 
