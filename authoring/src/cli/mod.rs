@@ -6,10 +6,13 @@ pub mod calibrate;
 pub mod classify;
 pub mod compensate;
 pub mod decode;
+pub mod demo;
 pub mod eval;
 pub mod inspect;
 pub mod keygen;
+pub mod render;
 pub mod restore;
+pub mod simulate;
 pub mod verify;
 
 /// The one time taken at the start of a command (Unix seconds).
