@@ -6,8 +6,12 @@ use restage_authoring::imgio::LinearImage;
 
 fn main() {
     tracing_subscriber::fmt().with_env_filter(tracing_subscriber::EnvFilter::from_default_env()).init();
-    let spec =
-        SyntheticSpec { camera: (1600, 1200), projector: (1400, 1050), with_transport: false, ..SyntheticSpec::small(3, 7) };
+    let spec = SyntheticSpec {
+        camera: (1600, 1200),
+        projector: (1400, 1050),
+        with_transport: false,
+        ..SyntheticSpec::small(3, 7)
+    };
     let s = build(&spec);
     let mut target = LinearImage::new(1600, 1200).unwrap();
     for (v, a) in target.data.iter_mut().zip(&s.albedo) {
@@ -18,6 +22,11 @@ fn main() {
     for _ in 0..3 {
         let t = std::time::Instant::now();
         let c = compensate_prepared(&s.model, &prep, &target, &params).unwrap();
-        eprintln!("total {:.1} ms, rounds {}, points {}", t.elapsed().as_secs_f64() * 1e3, c.stats.rounds, c.stats.certificate_points);
+        eprintln!(
+            "total {:.1} ms, rounds {}, points {}",
+            t.elapsed().as_secs_f64() * 1e3,
+            c.stats.rounds,
+            c.stats.certificate_points
+        );
     }
 }

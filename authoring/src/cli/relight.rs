@@ -42,7 +42,8 @@ pub fn run(args: Args) -> Result<()> {
     let lighting = match &args.lighting {
         Some(p) => {
             let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            toml::from_str::<Lighting>(&text).with_context(|| format!("{} is not a valid lighting file", p.display()))?
+            toml::from_str::<Lighting>(&text)
+                .with_context(|| format!("{} is not a valid lighting file", p.display()))?
         }
         None => Lighting::default(),
     };

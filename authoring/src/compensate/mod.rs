@@ -403,8 +403,10 @@ pub fn compensate_prepared(
                 let c = geom.coord[i * kn + k];
                 let hf = geom.half[i * kn + k];
                 let (rx, ry) = (hf[0] + 0.5, hf[1] + 0.5);
-                let (xa, xb) = (((c[0] - rx).ceil() as i64).max(0), ((c[0] + rx).floor() as i64).min(pw as i64 - 1));
-                let (ya, yb) = (((c[1] - ry).ceil() as i64).max(0), ((c[1] + ry).floor() as i64).min(ph as i64 - 1));
+                let (xa, xb) =
+                    (((c[0] - rx).ceil() as i64).max(0), ((c[0] + rx).floor() as i64).min(pw as i64 - 1));
+                let (ya, yb) =
+                    (((c[1] - ry).ceil() as i64).max(0), ((c[1] + ry).floor() as i64).min(ph as i64 - 1));
                 for y in ya..=yb {
                     let wy = 1.0 - (y as f32 - c[1]).abs() / ry;
                     for x in xa..=xb {

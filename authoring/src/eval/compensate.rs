@@ -10,6 +10,7 @@ use crate::compensate::synthetic::SyntheticStage;
 use crate::compensate::{self, CompensateError, Compensation, Exponent, Params, Prepared};
 use crate::imgio::LinearImage;
 use crate::stage_model::StageModel;
+use crate::stage_sim::{SceneConfig, SceneName, VirtualStage};
 
 const STEP: &str = "compensate";
 
@@ -20,6 +21,46 @@ pub trait TruePhysics {
     fn true_lux(&self, frames: &[RgbImage]) -> Vec<[f64; 3]>;
     /// What the camera (a visitor at its place) sees, linear camera values.
     fn view(&self, frames: &[RgbImage]) -> Vec<[f32; 3]>;
+}
+
+impl TruePhysics for VirtualStage {
+    fn true_lux(&self, frames: &[RgbImage]) -> Vec<[f64; 3]> {
+        let room = self.setup().stray_lux;
+        let e = self.irradiance(frames).expect("frames were made for this stage");
+        e.iter()
+            .zip(self.pixels())
+            .map(|(e, p)| if p.is_object() { e.map(|v| v as f64 + room) } else { [f64::NAN; 3] })
+            .collect()
+    }
+
+    fn view(&self, frames: &[RgbImage]) -> Vec<[f32; 3]> {
+        self.render(frames, false).expect("frames were made for this stage").data
+    }
+}
+
+/// The ideal restoration of a virtual stage's object as the camera should see it: its
+/// pristine paint (albedo), 0 off the object.
+pub fn pristine_target(stage: &VirtualStage) -> LinearImage {
+    let cam = stage.camera();
+    let data =
+        stage.pixels().iter().map(|p| if p.is_object() { p.albedo_pristine } else { [0.0; 3] }).collect();
+    LinearImage { width: cam.width, height: cam.height, data }
+}
+
+/// Every built-in scene at an evaluation size (camera 480x360, projectors 560x420): the
+/// object's pristine paint as the target, compensated with the TRUE stage model, judged with
+/// the true physics.
+pub fn evaluate_builtin(seed: u64, params: &Params) -> Result<Vec<Metric>, CompensateError> {
+    let mut rows = Vec::new();
+    for scene in SceneName::ALL {
+        let cfg =
+            SceneConfig { scene, seed, camera: [480, 360], projector: [560, 420], ..SceneConfig::default() };
+        let stage = VirtualStage::new(&cfg).expect("built-in scene configuration is valid");
+        let model = stage.truth();
+        let target = pristine_target(&stage);
+        rows.extend(evaluate(scene.name(), &stage, &model, &target, params)?);
+    }
+    Ok(rows)
 }
 
 impl TruePhysics for SyntheticStage {

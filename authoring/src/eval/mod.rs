@@ -2,8 +2,11 @@
 //! of one table, printed for people and as JSON for machines. One submodule per step.
 
 pub mod compensate;
+pub mod geometry;
 
 use serde::Serialize;
+
+pub mod transport;
 
 /// One measured figure, with the target it is held to (if any).
 #[derive(Clone, Debug, Serialize)]

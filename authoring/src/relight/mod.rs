@@ -80,7 +80,10 @@ impl Lighting {
                 Light::Point { position, colour } => (position, colour),
             };
             if !v.iter().chain(c).all(|x| x.is_finite()) || c.iter().any(|&x| x < 0.0) {
-                return Err(RelightError::BadLight { index, problem: "values must be finite, colours >= 0".into() });
+                return Err(RelightError::BadLight {
+                    index,
+                    problem: "values must be finite, colours >= 0".into(),
+                });
             }
             if let Light::Directional { direction, .. } = l
                 && direction.iter().all(|&x| x == 0.0)
@@ -132,7 +135,11 @@ pub fn shade(point: [f64; 3], normal: [f64; 3], lighting: &Lighting) -> ([f64; 3
 
 /// Relights `texture` (linear, camera space): `exposure * (texture * diffuse + specular)`
 /// where the stage knows the surface; unchanged elsewhere.
-pub fn relight(stage: &StageModel, texture: &LinearImage, lighting: &Lighting) -> Result<LinearImage, RelightError> {
+pub fn relight(
+    stage: &StageModel,
+    texture: &LinearImage,
+    lighting: &Lighting,
+) -> Result<LinearImage, RelightError> {
     lighting.validate()?;
     check_size(stage, texture, "restored image")?;
     let data = texture
@@ -155,7 +162,13 @@ pub fn relight(stage: &StageModel, texture: &LinearImage, lighting: &Lighting) -
 fn check_size(stage: &StageModel, img: &LinearImage, what: &'static str) -> Result<(), RelightError> {
     let (w, h) = (stage.camera.width, stage.camera.height);
     if (img.width, img.height) != (w, h) {
-        return Err(RelightError::SizeMismatch { what, got_w: img.width, got_h: img.height, want_w: w, want_h: h });
+        return Err(RelightError::SizeMismatch {
+            what,
+            got_w: img.width,
+            got_h: img.height,
+            want_w: w,
+            want_h: h,
+        });
     }
     Ok(())
 }
@@ -210,7 +223,11 @@ pub fn infuse_noise(
         return Err(RelightError::BadParam { name: "noise amount", value: amount, range: "0..=1" });
     }
     if !(1..=32).contains(&radius) {
-        return Err(RelightError::BadParam { name: "noise radius", value: radius as f64, range: "1..=32 px" });
+        return Err(RelightError::BadParam {
+            name: "noise radius",
+            value: radius as f64,
+            range: "1..=32 px",
+        });
     }
     check_size(stage, image, "image")?;
     check_size(stage, photo, "photo")?;
@@ -291,7 +308,8 @@ mod tests {
             v.iter_mut().for_each(|c| *c *= g);
         }
         let noisy = infuse_noise(&s.model, &tex, &photo, 0.5, 3).unwrap();
-        let mean = |img: &LinearImage| img.data.iter().map(|v| v[0] as f64).sum::<f64>() / img.data.len() as f64;
+        let mean =
+            |img: &LinearImage| img.data.iter().map(|v| v[0] as f64).sum::<f64>() / img.data.len() as f64;
         assert!((mean(&noisy) / mean(&tex) - 1.0).abs() < 0.02);
         assert!(noisy.data.iter().any(|v| (v[0] - 0.5).abs() > 0.02));
         let none = infuse_noise(&s.model, &tex, &photo, 0.0, 3).unwrap();
@@ -302,7 +320,10 @@ mod tests {
     fn bad_input_is_refused() {
         let s = synthetic_stage(1, 4);
         let small = LinearImage::new(3, 3).unwrap();
-        assert!(matches!(relight(&s.model, &small, &Lighting::default()), Err(RelightError::SizeMismatch { .. })));
+        assert!(matches!(
+            relight(&s.model, &small, &Lighting::default()),
+            Err(RelightError::SizeMismatch { .. })
+        ));
         let bad = Lighting { shininess: 0.0, ..Lighting::default() };
         let tex = LinearImage::new(s.model.camera.width, s.model.camera.height).unwrap();
         assert!(relight(&s.model, &tex, &bad).unwrap_err().to_string().contains("shininess"));
