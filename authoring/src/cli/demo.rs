@@ -52,6 +52,8 @@ pub fn run(args: &Args) -> Result<()> {
     write_contact_sheet(&manifest, &capture_dir, &sheet)?;
     tracing::info!("step 1 (simulate) done at {:.1} s: {}", start.elapsed().as_secs_f64(), sheet.display());
 
+    super::demo_chain::run_chain(&args.out, &capture_dir, &scene, &manifest, args.seed, start)?;
+
     tracing::info!(
         "demo finished in {:.1} s; results in {}",
         start.elapsed().as_secs_f64(),

@@ -7,6 +7,7 @@ pub mod classify;
 pub mod compensate;
 pub mod decode;
 pub mod demo;
+pub mod demo_chain;
 pub mod eval;
 pub mod inspect;
 pub mod keygen;
