@@ -35,8 +35,7 @@ pub use hints::{HintMap, hints_from_rgba};
 pub use region::{Region, Shape};
 pub use render::{before_after, boundary_mask, render_labels};
 
-/// Label value of pixels that take no part (masked out by classification).
-pub const MASKED: u8 = 255;
+pub use crate::classify::{LabelMap, MASKED};
 
 #[derive(Debug, Error)]
 pub enum RestoreError {
@@ -74,45 +73,28 @@ pub enum RestoreError {
     HintLabel { label: u8, x: u32, y: u32, classes: usize },
 }
 
-/// A class-index image: row-major, `y * width + x`, one class per pixel, [`MASKED`] = none.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct LabelMap {
-    pub width: u32,
-    pub height: u32,
-    pub data: Vec<u8>,
-}
-
-impl LabelMap {
-    pub fn new(width: u32, height: u32, data: Vec<u8>) -> Result<Self, RestoreError> {
-        if !(1..=32768).contains(&width)
-            || !(1..=32768).contains(&height)
-            || data.len() != width as usize * height as usize
-        {
-            return Err(RestoreError::LabelSize { width, height, len: data.len() });
-        }
-        Ok(Self { width, height, data })
+/// Checks a label map against a palette of `classes` entries: every label a class or masked.
+pub fn check_labels(labels: &LabelMap, classes: usize) -> Result<(), RestoreError> {
+    if classes == 0 || classes > 255 {
+        return Err(RestoreError::PaletteSize(classes));
     }
-
-    pub fn get(&self, x: u32, y: u32) -> u8 {
-        self.data[y as usize * self.width as usize + x as usize]
+    if labels.data.len() != labels.width as usize * labels.height as usize {
+        return Err(RestoreError::LabelSize {
+            width: labels.width,
+            height: labels.height,
+            len: labels.data.len(),
+        });
     }
-
-    /// Checks every label is a class of a palette with `classes` entries (or masked).
-    pub fn check_classes(&self, classes: usize) -> Result<(), RestoreError> {
-        if classes == 0 || classes > 255 {
-            return Err(RestoreError::PaletteSize(classes));
-        }
-        if let Some(i) = self.data.iter().position(|&l| l != MASKED && l as usize >= classes) {
-            let w = self.width as usize;
-            return Err(RestoreError::LabelNotInPalette {
-                label: self.data[i],
-                x: (i % w) as u32,
-                y: (i / w) as u32,
-                classes,
-            });
-        }
-        Ok(())
+    if let Some(i) = labels.data.iter().position(|&l| l != MASKED && l as usize >= classes) {
+        let w = labels.width as usize;
+        return Err(RestoreError::LabelNotInPalette {
+            label: labels.data[i],
+            x: (i % w) as u32,
+            y: (i / w) as u32,
+            classes,
+        });
     }
+    Ok(())
 }
 
 /// Parameters of the minimisation. Defaults are the paper's typical values where it gives
@@ -245,7 +227,7 @@ pub fn restore(
 ) -> Result<Restored, RestoreError> {
     params.validate()?;
     let n_classes = classes.luminance.len();
-    labels.check_classes(n_classes)?;
+    check_labels(labels, n_classes)?;
     let whole = [Region::whole()];
     let regions = if regions.is_empty() { &whole[..] } else { regions };
     let (w, h) = (labels.width, labels.height);

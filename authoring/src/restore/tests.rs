@@ -11,7 +11,7 @@ fn classes(n: usize) -> ClassInfo {
 
 fn map(w: u32, h: u32, f: impl Fn(u32, u32) -> u8) -> LabelMap {
     let data = (0..h).flat_map(|y| (0..w).map(move |x| (x, y))).map(|(x, y)| f(x, y)).collect();
-    LabelMap::new(w, h, data).unwrap()
+    LabelMap::from_vec(w, h, data).unwrap()
 }
 
 fn run(l: &LabelMap, p: &RestoreParams) -> LabelMap {
