@@ -76,7 +76,7 @@ fn sigkill_at_random_moments_never_corrupts_or_under_counts() {
     assert!(seen > 0.0, "the recorder saw no light: the test exercised nothing");
     assert!(lit_at_kill >= 50, "only {lit_at_kill} kills while lit");
     assert!(recorded >= seen, "ledger {recorded} lx·h < seen {seen} lx·h");
-    // Stronger than the totals: every lit stretch sits inside one row paying its lux.
+    // Stronger than the totals: every lit instant is covered by rows paying its lux.
     let checked = stage.assert_every_lit_stretch_paid(&ledger.exposure_rows(OBJECT).unwrap());
     assert!(checked >= 200, "only {checked} lit stretches");
     // A restoration was shown at some point (presses worked).

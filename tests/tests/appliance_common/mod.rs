@@ -128,8 +128,9 @@ impl Stage {
         lux
     }
 
-    /// Every lit stretch the recorder saw must lie inside one ledger row paying at least its
-    /// lux (reserved before it began, committed after it ended). Returns how many were checked.
+    /// Every lit stretch the recorder saw must be covered, at every instant, by ledger rows
+    /// paying at least its lux (reserved before it began; committed after it ended, or
+    /// handed over to a new reservation first). Returns how many stretches were checked.
     pub fn assert_every_lit_stretch_paid(&self, rows: &[restage_appliance::ledger::ExposureRow]) -> usize {
         let recs = self.records();
         let mut cache = HashMap::new();
@@ -140,12 +141,25 @@ impl Stage {
                 continue;
             }
             let (from_us, to_us) = (w[0].unix_us as i128, w[1].unix_us as i128);
-            let paid = rows.iter().any(|r| {
-                r.lux >= lux * (1.0 - 1e-9)
-                    && i128::from(r.start_ms) * 1000 <= from_us
-                    && i128::from(r.end_ms) * 1000 >= to_us
-            });
-            assert!(paid, "light of {lux} lx from {from_us} to {to_us} us is not covered by one ledger row");
+            let mut paying: Vec<(i128, i128)> = rows
+                .iter()
+                .filter(|r| r.lux >= lux * (1.0 - 1e-9))
+                .map(|r| (i128::from(r.start_ms) * 1000, i128::from(r.end_ms) * 1000))
+                .filter(|&(s, e)| e >= from_us && s <= to_us)
+                .collect();
+            paying.sort();
+            // Sweep: the covered prefix of [from, to] must reach `to` without a gap.
+            let mut covered = from_us;
+            for (s, e) in paying {
+                if s <= covered {
+                    covered = covered.max(e);
+                }
+            }
+            assert!(
+                covered >= to_us,
+                "light of {lux} lx from {from_us} to {to_us} us ({:?}) is paid only until {covered} us",
+                w[0].frames
+            );
             checked += 1;
         }
         checked
