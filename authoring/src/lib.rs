@@ -9,4 +9,5 @@ pub mod compensate;
 pub mod eval;
 pub mod export;
 pub mod imgio;
+pub mod restore;
 pub mod stage_model;

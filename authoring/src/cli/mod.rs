@@ -6,6 +6,7 @@ pub mod classify;
 pub mod compensate;
 pub mod inspect;
 pub mod keygen;
+pub mod restore;
 pub mod verify;
 
 /// The one time taken at the start of a command (Unix seconds).

@@ -1,7 +1,11 @@
 //! Evaluation against the virtual stage's ground truth: every step reports figures as rows
 //! of one table, printed for people and as JSON for machines. One submodule per step.
 
+pub mod compensate;
+
 use serde::Serialize;
+
+pub mod transport;
 
 /// One measured figure, with the target it is held to (if any).
 #[derive(Clone, Debug, Serialize)]
