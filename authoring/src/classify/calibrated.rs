@@ -45,7 +45,17 @@ pub struct Classification {
 /// Per-pixel xyY as f32, with black at the D65 chromaticity (see [`crate::color::xyz_to_xyy`]).
 #[inline]
 pub fn xyy_f32(rgb: [f32; 3]) -> [f32; 3] {
-    let m = SRGB_TO_XYZ.map(|r| r.map(|v| v as f32));
+    const M: [[f32; 3]; 3] = {
+        let m = SRGB_TO_XYZ;
+        let mut out = [[0f32; 3]; 3];
+        let mut i = 0;
+        while i < 9 {
+            out[i / 3][i % 3] = m[i / 3][i % 3] as f32;
+            i += 1;
+        }
+        out
+    };
+    let m = M;
     let x = m[0][0] * rgb[0] + m[0][1] * rgb[1] + m[0][2] * rgb[2];
     let y = m[1][0] * rgb[0] + m[1][1] * rgb[1] + m[1][2] * rgb[2];
     let z = m[2][0] * rgb[0] + m[2][1] * rgb[1] + m[2][2] * rgb[2];

@@ -1,6 +1,8 @@
 //! Evaluation against the virtual stage's ground truth: every step reports figures as rows
 //! of one table, printed for people and as JSON for machines. One submodule per step.
 
+pub mod classify;
+
 use serde::Serialize;
 
 /// One measured figure, with the target it is held to (if any).
