@@ -1,3 +1,11 @@
 //! restage-appliance: the unattended stage player (state machine, ledger, outputs, inputs).
 
+pub mod config;
+pub mod input;
+pub mod ledger;
+pub mod loader;
+pub mod notify;
 pub mod output;
+pub mod player;
+pub mod runtime;
+pub mod show;

@@ -1,7 +1,15 @@
 //! `restage-appliance`: the stage machine's program.
 
-use anyhow::Result;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
+use restage_appliance::config::{Config, LEDGER_FILE};
+use restage_appliance::ledger::Ledger;
+use restage_appliance::loader;
+use restage_appliance::player::{Clock, SystemClock};
+use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
 #[command(name = "restage-appliance", version, about = "Play a signed restage bundle on the stage")]
@@ -11,10 +19,193 @@ struct Cli {
 }
 
 #[derive(Subcommand)]
-enum Command {}
+enum Command {
+    /// Run the player: outputs, inputs, exposure timer and ledger (the systemd service).
+    Run {
+        /// The TOML configuration (see systemd/restage-appliance.toml).
+        #[arg(long)]
+        config: PathBuf,
+    },
+    /// Print the light budget used and left, the active bundle, warnings and last showings,
+    /// from the ledger (works while the appliance runs).
+    Status {
+        #[arg(long)]
+        config: PathBuf,
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Verify BUNDLE (signature, validity, version, light bound), then atomically make it the
+    /// active bundle and ask a running appliance to reload.
+    Install {
+        bundle: PathBuf,
+        #[arg(long)]
+        config: PathBuf,
+    },
+    /// Verify a bundle (signature, validity, every section, every scene's light bound) with
+    /// the same code the player loads bundles with.
+    Verify {
+        bundle: PathBuf,
+        /// Directory of trusted public keys (*.pem, SPKI).
+        #[arg(long)]
+        trust: PathBuf,
+    },
+}
 
-// The allow goes when the first subcommand lands (an empty enum makes main unreachable).
-#[allow(unreachable_code)]
 fn main() -> Result<()> {
-    match Cli::parse().command {}
+    tracing_subscriber::fmt()
+        .with_env_filter(EnvFilter::try_from_env("RESTAGE_LOG").unwrap_or_else(|_| EnvFilter::new("info")))
+        .with_writer(std::io::stderr)
+        .init();
+    match Cli::parse().command {
+        Command::Run { config } => run(&config),
+        Command::Status { config, json } => status(&config, json),
+        Command::Install { bundle, config } => install(&bundle, &config),
+        Command::Verify { bundle, trust } => verify(&bundle, &trust),
+    }
+}
+
+fn verify(bundle: &Path, trust: &Path) -> Result<()> {
+    use restage_shared::bundle::{VerifyOptions, describe, verify_file};
+    // The one time of this load, taken before anything is read.
+    let now = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .context("the system clock is before 1970")?
+        .as_secs() as i64;
+    let v = verify_file(bundle, trust, &VerifyOptions::at(now))?;
+    print!("{}", describe(&v.manifest, Some(&v.peaks)));
+    println!("OK: signature verified with key {}", v.key_id);
+    Ok(())
+}
+
+fn run(config: &Path) -> Result<()> {
+    let config = Config::load(config)?;
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .context("starting the event loop")?;
+    rt.block_on(restage_appliance::runtime::run(config)).context("the appliance stopped (outputs dark)")?;
+    Ok(())
+}
+
+fn status(config: &Path, json: bool) -> Result<()> {
+    let config = Config::load(config)?;
+    let path = config.state_dir.join(LEDGER_FILE);
+    if !path.exists() {
+        bail!("no ledger at {} (has the appliance run yet?)", path.display());
+    }
+    let ledger = Ledger::open_read_only(&path, config.ledger.utc_offset_minutes)?;
+    let s = ledger.status(SystemClock::new().now().unix_ms)?;
+    let mut out = std::io::stdout().lock();
+    if json {
+        writeln!(out, "{}", serde_json::to_string_pretty(&s)?)?;
+        return Ok(());
+    }
+    match &s.active {
+        Some(a) => writeln!(
+            out,
+            "active bundle: {} version {} ({}), {}",
+            a.object,
+            a.version,
+            &a.bundle_hash[..16.min(a.bundle_hash.len())],
+            a.path
+        )?,
+        None => writeln!(out, "active bundle: none")?,
+    }
+    let left = |l: Option<f64>| l.map_or("no budget".into(), |l| format!("{l:.3} lx·h left"));
+    writeln!(
+        out,
+        "today ({}): {:.3} lx·h used, {}",
+        s.day,
+        s.day_used_lux_hours,
+        left(s.day_left_lux_hours)
+    )?;
+    writeln!(out, "last 365 days: {:.3} lx·h used, {}", s.year_used_lux_hours, left(s.year_left_lux_hours))?;
+    writeln!(out, "all time: {:.3} lx·h; open reservations: {}", s.total_lux_hours, s.open_reservations)?;
+    for w in &s.warnings {
+        writeln!(
+            out,
+            "WARNING: {} budget at {:.0} % ({:.3} of {:.3} lx·h, {})",
+            w.budget,
+            w.threshold * 100.0,
+            w.used,
+            w.budget_lux_hours,
+            w.period
+        )?;
+    }
+    writeln!(out, "last showings:")?;
+    for sh in &s.last_showings {
+        writeln!(
+            out,
+            "  {} +{:.1} s  {}  (ended by {})",
+            sh.started_ms,
+            (sh.ended_ms - sh.started_ms) as f64 / 1000.0,
+            sh.scenes,
+            sh.ended_by
+        )?;
+    }
+    writeln!(out, "last events:")?;
+    for e in &s.last_events {
+        writeln!(out, "  {} {}: {}", e.at_ms, e.kind, e.detail)?;
+    }
+    Ok(())
+}
+
+fn install(bundle: &Path, config: &Path) -> Result<()> {
+    let config = Config::load(config)?;
+    let now = SystemClock::new().now();
+    let ledger_path = config.state_dir.join(LEDGER_FILE);
+    let ledger = Ledger::open(&ledger_path, config.ledger.utc_offset_minutes)?;
+    let (verified, hash) = loader::open_verified(bundle, &config.trust_dir, &ledger, now.unix_ms)?;
+    let m = &verified.manifest;
+    eprintln!(
+        "verified: {} version {} ({} scenes), manifest {}",
+        m.object.id,
+        m.version,
+        m.scenes.len(),
+        &hash[..16]
+    );
+    drop(verified);
+
+    // Copy next to the target, flush, rename over it, flush the directory: a crash leaves the
+    // old bundle or the new one, never a mix.
+    let target = config.bundle_path();
+    let dir = target.parent().context("the bundle path has no directory")?;
+    let tmp = dir.join(format!(".install-{}.tmp", std::process::id()));
+    let copy = || -> std::io::Result<()> {
+        std::fs::copy(bundle, &tmp)?;
+        std::fs::File::open(&tmp)?.sync_all()?;
+        std::fs::rename(&tmp, &target)?;
+        std::fs::File::open(dir)?.sync_all()
+    };
+    if let Err(e) = copy() {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e).with_context(|| format!("installing {} as {}", bundle.display(), target.display()));
+    }
+    // The file now in place must be the one verified (a bundle changed between verify and
+    // copy would otherwise slip in): verify the installed copy again.
+    loader::open_verified(&target, &config.trust_dir, &ledger, now.unix_ms)
+        .context("the installed copy does not verify")?;
+    eprintln!("installed as {}", target.display());
+    if let Some(sock) = &config.inputs.control_socket {
+        match ask(sock, "reload") {
+            Ok(answer) => eprintln!("running appliance: {answer}"),
+            Err(e) => eprintln!(
+                "no running appliance answered on {} ({e}); it loads the bundle at start",
+                sock.display()
+            ),
+        }
+    }
+    Ok(())
+}
+
+/// Sends one command to the control socket and returns the answer line.
+fn ask(socket: &Path, command: &str) -> std::io::Result<String> {
+    use std::io::{BufRead, BufReader};
+    let mut s = std::os::unix::net::UnixStream::connect(socket)?;
+    s.set_read_timeout(Some(std::time::Duration::from_secs(10)))?;
+    s.write_all(format!("{command}\n").as_bytes())?;
+    let mut line = String::new();
+    BufReader::new(s).read_line(&mut line)?;
+    Ok(line.trim_end().to_string())
 }

@@ -7,5 +7,7 @@ pub mod classify;
 pub mod color;
 pub mod compensate;
 pub mod eval;
+pub mod export;
 pub mod imgio;
+pub mod restore;
 pub mod stage_model;

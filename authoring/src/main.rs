@@ -16,8 +16,18 @@ struct Cli {
 enum Command {
     /// Classify a photo's pixels into the picked paint colours (paper §4.1).
     Classify(cli::classify::ClassifyArgs),
+    /// Restore a classified label map by contour energy minimisation (paper §4.2-4.4).
+    Restore(cli::restore::RestoreArgs),
     /// One frame per projector for a restored image, under the light bound (paper §5.1).
     Compensate(cli::compensate::Args),
+    /// Make a new Ed25519 signing key (NAME.pem, NAME.pub.pem).
+    Keygen(cli::keygen::KeygenArgs),
+    /// Sign compensation's frames and light certificate into a bundle.
+    Bundle(cli::bundle::BundleArgs),
+    /// Summarise a bundle: scenes, projectors, policy, peak lux, hashes.
+    Inspect(cli::inspect::InspectArgs),
+    /// Verify a bundle exactly as the appliance does.
+    Verify(cli::verify::VerifyArgs),
 }
 
 fn main() -> Result<()> {
@@ -30,6 +40,11 @@ fn main() -> Result<()> {
         .init();
     match Cli::parse().command {
         Command::Classify(args) => cli::classify::run(&args),
+        Command::Restore(a) => cli::restore::run(&a),
         Command::Compensate(a) => cli::compensate::run(a),
+        Command::Keygen(a) => cli::keygen::run(&a),
+        Command::Bundle(a) => cli::bundle::run(&a),
+        Command::Inspect(a) => cli::inspect::run(&a),
+        Command::Verify(a) => cli::verify::run(&a),
     }
 }

@@ -64,7 +64,7 @@ pub fn run(args: Args) -> Result<()> {
     let comp = compensate::compensate_prepared(&stage, &prep, &target, &params)
         .with_context(|| format!("compensating {}", restored.display()))?;
     bar.set_message("writing frames and report");
-    compensate::io::save(&args.out, &comp, &params)?;
+    compensate::io::save(&args.out, &comp, &params, &prep)?;
     compensate::report::save(
         &args.out.join("report"),
         &comp,

@@ -12,6 +12,10 @@
 //! the patch: the check over-estimates, never under-estimates.
 
 use rayon::prelude::*;
+use restage_shared::light::{
+    CertificateMap, Footprint, LightCertificate, LightError, LightModel, LuxWeighting, PeakIrradiance,
+    ProjectorLight, XrgbFrame, max_irradiance, xrgb_from_rgb,
+};
 
 use super::geometry::Geometry;
 use crate::stage_model::StageModel;
@@ -161,4 +165,64 @@ pub fn build(stage: &StageModel, geom: &Geometry, reduction: u32, ambient_lux: f
         .map(|i| if geom.covered(i) { patch_point[(i / cw / r) * gw + (i % cw) / r] } else { u32::MAX })
         .collect();
     Certificate { reduction: r as u32, point_px, projectors, ambient_lux, point_of_pixel }
+}
+
+impl Certificate {
+    /// The certificate in the bundle's format (`restage_shared::light`).
+    pub fn to_shared(&self) -> LightCertificate {
+        LightCertificate {
+            points: self.points() as u32,
+            point_px: self.point_px.clone(),
+            projectors: self
+                .projectors
+                .iter()
+                .map(|(w, h, blocks)| CertificateMap {
+                    width: *w,
+                    height: *h,
+                    footprints: blocks
+                        .iter()
+                        .map(|b| Footprint {
+                            x0: b.x0,
+                            y0: b.y0,
+                            x1: b.x1,
+                            y1: b.y1,
+                            lux_per_unit: b.lux_per_unit,
+                        })
+                        .collect(),
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The bundle's light model for this stage and bound: the stage model's responses, black
+/// levels and brightness, max-channel lux, and the room light the certificate counts.
+pub fn light_model(stage: &StageModel, e_bound_lux: f64, margin: f64, ambient_lux: f64) -> LightModel {
+    LightModel {
+        projectors: stage
+            .projectors
+            .iter()
+            .map(|p| ProjectorLight { response: p.response.clone(), black: p.black, lux_at_1m: p.lux_at_1m })
+            .collect(),
+        weighting: LuxWeighting::MaxChannel,
+        e_bound_lux,
+        safety_margin: margin,
+        ambient_lux,
+        lux_meter: vec![],
+    }
+}
+
+/// The appliance's independent check (`restage_shared::light::max_irradiance`) of `frames`.
+pub fn independent_peak(
+    light: &LightModel,
+    cert: &LightCertificate,
+    frames: &[image::RgbImage],
+) -> Result<PeakIrradiance, LightError> {
+    let xrgb: Vec<Vec<u8>> = frames.iter().map(|f| xrgb_from_rgb(f.as_raw())).collect();
+    let views: Vec<XrgbFrame<'_>> = frames
+        .iter()
+        .zip(&xrgb)
+        .map(|(f, x)| XrgbFrame { width: f.width(), height: f.height(), xrgb: x })
+        .collect();
+    max_irradiance(light, cert, &views)
 }

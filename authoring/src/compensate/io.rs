@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use image::RgbImage;
 use serde::Serialize;
 
-use super::{Compensation, Params, Stats};
+use super::{Compensation, Params, Prepared, Stats};
 use crate::imgio::ImageError;
 
 /// Name of projector k's frame in a frames folder.
@@ -16,6 +16,10 @@ pub fn frame_file(k: usize) -> String {
 }
 
 pub const SUMMARY_FILE: &str = "compensation.json";
+/// The light certificate (`restage_shared::light::LightCertificate`, postcard), for the bundle.
+pub const CERTIFICATE_FILE: &str = "certificate.bin";
+/// The light model (`restage_shared::light::LightModel`, JSON): E_bound, margin, room light.
+pub const LIGHT_FILE: &str = "light.json";
 
 #[derive(Serialize)]
 struct Summary<'a> {
@@ -27,8 +31,14 @@ struct Summary<'a> {
     stats: &'a Stats,
 }
 
-/// Writes the frames and `compensation.json` into `dir` (created if needed).
-pub fn save(dir: &Path, comp: &Compensation, params: &Params) -> Result<Vec<PathBuf>, ImageError> {
+/// Writes the frames, `compensation.json`, `certificate.bin` and `light.json` into `dir`
+/// (created if needed).
+pub fn save(
+    dir: &Path,
+    comp: &Compensation,
+    params: &Params,
+    prep: &Prepared,
+) -> Result<Vec<PathBuf>, ImageError> {
     let io_err = |path: &Path, e: std::io::Error| ImageError::Write { path: path.into(), source: e.into() };
     std::fs::create_dir_all(dir).map_err(|e| io_err(dir, e))?;
     let mut out = Vec::new();
@@ -47,6 +57,13 @@ pub fn save(dir: &Path, comp: &Compensation, params: &Params) -> Result<Vec<Path
     };
     let p = dir.join(SUMMARY_FILE);
     std::fs::write(&p, serde_json::to_string_pretty(&summary).expect("summary serialises"))
+        .map_err(|e| io_err(&p, e))?;
+    out.push(p);
+    let p = dir.join(CERTIFICATE_FILE);
+    std::fs::write(&p, prep.certificate.to_shared().to_bytes()).map_err(|e| io_err(&p, e))?;
+    out.push(p);
+    let p = dir.join(LIGHT_FILE);
+    std::fs::write(&p, serde_json::to_string_pretty(&comp.light).expect("light model serialises"))
         .map_err(|e| io_err(&p, e))?;
     out.push(p);
     Ok(out)

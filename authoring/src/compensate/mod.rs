@@ -25,6 +25,7 @@ pub mod weights;
 
 use image::RgbImage;
 use rayon::prelude::*;
+use restage_shared::light::{LightError, LightModel, check_bound};
 use thiserror::Error;
 
 pub use self::certificate::Certificate;
@@ -45,7 +46,7 @@ pub enum CompensateError {
     SizeMismatch { got_w: u32, got_h: u32, want_w: u32, want_h: u32 },
     #[error("E_bound {0} lux is invalid (expected a finite number of lux > 0)")]
     BadBound(f64),
-    #[error("safety margin {0} is invalid (expected a fraction 0 <= margin < 1, e.g. 0.05)")]
+    #[error("safety margin {0} is invalid (expected a fraction 0 <= margin <= 0.5, e.g. 0.05)")]
     BadMargin(f64),
     #[error("smoothness exponent m = {0} is invalid (expected a number >= 0, or infinity)")]
     BadExponent(f64),
@@ -67,6 +68,11 @@ pub enum CompensateError {
     NoGain { got: usize, want: usize },
     #[error("no object point is lit by any projector: the stage model has no coverage")]
     NoCoverage,
+    #[error(
+        "the independent light check refused the frames ({0}); this is a bug in compensation \
+         — no frames were written"
+    )]
+    IndependentCheck(LightError),
     #[error(transparent)]
     Stage(#[from] StageModelError),
 }
@@ -98,7 +104,7 @@ impl Params {
         if !(self.e_bound_lux.is_finite() && self.e_bound_lux > 0.0) {
             return Err(CompensateError::BadBound(self.e_bound_lux));
         }
-        if !(0.0..1.0).contains(&self.margin) {
+        if !(0.0..=0.5).contains(&self.margin) {
             return Err(CompensateError::BadMargin(self.margin));
         }
         if !(0.0..=0.5).contains(&self.clip_fraction) {
@@ -155,6 +161,8 @@ pub struct Compensation {
     /// Per camera pixel, the recomputed irradiance of the final frames at its certificate
     /// point (lux, conservative); 0 where no projector reaches.
     pub lux: Vec<f64>,
+    /// The light model the bundle carries (responses, black, E_bound, margin, room light).
+    pub light: LightModel,
     pub stats: Stats,
 }
 
@@ -416,6 +424,14 @@ pub fn compensate_prepared(
         .map(|&pt| if pt == u32::MAX { 0.0 } else { enf.lux[pt as usize] })
         .collect();
     let peak_lux = enf.lux.iter().copied().fold(0.0, f64::max);
+    // The appliance's own check, written independently of ours, must agree before anything
+    // leaves this function.
+    let light = certificate::light_model(stage, params.e_bound_lux, params.margin, room);
+    let shared = cert.to_shared();
+    let independent = certificate::independent_peak(&light, &shared, &frames)
+        .and_then(|peak| check_bound(&light, "compensation", &peak).map(|()| peak))
+        .map_err(CompensateError::IndependentCheck)?;
+    debug_assert!(independent.lux >= peak_lux - 1e-6 * peak_lux.max(1.0));
     tracing::info!(
         scale,
         peak_lux,
@@ -431,6 +447,7 @@ pub fn compensate_prepared(
         frames,
         weights,
         lux,
+        light,
         stats: Stats {
             covered_points: covered,
             limited_by_bound: by_bound,

@@ -7,6 +7,7 @@
 //! Ed25519 signature over header and manifest), then the payload sections back to back in
 //! manifest order, each with its length and BLAKE3 hash in the signed manifest.
 
+mod describe;
 pub mod example;
 mod manifest;
 mod reader;
@@ -14,6 +15,7 @@ mod writer;
 
 use std::path::PathBuf;
 
+pub use describe::{BundleFileError, describe, inspect_file, utc, verify_file};
 pub use manifest::*;
 pub use reader::{BundleReader, Limits, VerifiedBundle, VerifiedSection, VerifyOptions};
 use thiserror::Error;

@@ -67,6 +67,7 @@ pub struct BundleReader<R> {
     /// Absolute offset of each section.
     offsets: Vec<u64>,
     file_len: u64,
+    authenticated: bool,
 }
 
 /// A section whose hash was checked, decompressed. Callers keep it (e.g. copy a frame into
@@ -92,6 +93,9 @@ pub struct VerifiedBundle<R> {
     /// with one version have different hashes).
     pub manifest_hash: [u8; 32],
     pub key_id: KeyId,
+    /// True when the signature, validity and version were checked (`open`); false only
+    /// from `open_unauthenticated` (inspection): such a bundle must never be played.
+    pub authenticated: bool,
     src: R,
     offsets: Vec<u64>,
 }
@@ -115,7 +119,23 @@ impl<R: Read + Seek> BundleReader<R> {
     /// (`verify_strict`), the manifest (decode, key id, consistency), validity against
     /// `opts.now_unix_s`, rollback against `opts.last_accepted`, and the file's length
     /// against the sections' lengths (truncated or appended files are refused here).
-    pub fn open(mut src: R, trust: &TrustStore, opts: &VerifyOptions<'_>) -> Result<Self, BundleError> {
+    pub fn open(src: R, trust: &TrustStore, opts: &VerifyOptions<'_>) -> Result<Self, BundleError> {
+        Self::open_inner(src, Some((trust, opts)), opts.limits)
+    }
+
+    /// For `inspect` only: reads the header and manifest WITHOUT checking the signature,
+    /// validity or version, so an untrusted bundle can be described. Sections are still
+    /// hash-checked and scenes bound-checked by `verify`, but the result has
+    /// `authenticated == false`: never play it.
+    pub fn open_unauthenticated(src: R, limits: Limits) -> Result<Self, BundleError> {
+        Self::open_inner(src, None, limits)
+    }
+
+    fn open_inner(
+        mut src: R,
+        auth: Option<(&TrustStore, &VerifyOptions<'_>)>,
+        limits: Limits,
+    ) -> Result<Self, BundleError> {
         let file_len = src.seek(SeekFrom::End(0))?;
         src.seek(SeekFrom::Start(0))?;
         let mut header = [0u8; HEADER_LEN as usize];
@@ -134,8 +154,8 @@ impl<R: Read + Seek> BundleReader<R> {
             return Err(BundleError::ReservedFlags { flags });
         }
         let manifest_len = u64_at(16);
-        if manifest_len > opts.limits.max_manifest || manifest_len == 0 {
-            return Err(BundleError::ManifestTooLarge { len: manifest_len, max: opts.limits.max_manifest });
+        if manifest_len > limits.max_manifest || manifest_len == 0 {
+            return Err(BundleError::ManifestTooLarge { len: manifest_len, max: limits.max_manifest });
         }
         let sig_len = u64_at(24);
         if sig_len != SIGNATURE_BLOCK_LEN {
@@ -159,13 +179,15 @@ impl<R: Read + Seek> BundleReader<R> {
         let mut id = [0u8; KEY_ID_LEN];
         id.copy_from_slice(&block[..KEY_ID_LEN]);
         let key_id = KeyId(id);
-        let trusted = trust.get(&key_id).ok_or(BundleError::UnknownKey { key_id })?;
-        let sig_bytes: [u8; 64] = block[KEY_ID_LEN..].try_into().expect("64 bytes");
-        let signature = Signature::from_bytes(&sig_bytes);
-        trusted
-            .key
-            .verify_strict(&signed, &signature)
-            .map_err(|_| BundleError::BadSignature { key_id, origin: trusted.origin.clone() })?;
+        if let Some((trust, _)) = auth {
+            let trusted = trust.get(&key_id).ok_or(BundleError::UnknownKey { key_id })?;
+            let sig_bytes: [u8; 64] = block[KEY_ID_LEN..].try_into().expect("64 bytes");
+            let signature = Signature::from_bytes(&sig_bytes);
+            trusted
+                .key
+                .verify_strict(&signed, &signature)
+                .map_err(|_| BundleError::BadSignature { key_id, origin: trusted.origin.clone() })?;
+        }
 
         // Only signed bytes reach the decoder.
         let manifest_bytes = &signed[HEADER_LEN as usize..];
@@ -177,26 +199,28 @@ impl<R: Read + Seek> BundleReader<R> {
         if manifest.key_id != key_id {
             return Err(BundleError::KeyIdMismatch { manifest: manifest.key_id, block: key_id });
         }
-        manifest.validate(opts.limits.max_section).map_err(BundleError::ManifestInvalid)?;
-        let now = opts.now_unix_s;
-        if let Some(not_before) = manifest.not_before_unix_s
-            && now < not_before
-        {
-            return Err(BundleError::NotYetValid { not_before, now });
-        }
-        if let Some(expires) = manifest.expires_unix_s
-            && now >= expires
-        {
-            return Err(BundleError::Expired { expires, now });
-        }
-        if let Some(accepted) = (opts.last_accepted)(&manifest.object.id)
-            && manifest.version < accepted
-        {
-            return Err(BundleError::Rollback {
-                object: manifest.object.id.clone(),
-                version: manifest.version,
-                accepted,
-            });
+        manifest.validate(limits.max_section).map_err(BundleError::ManifestInvalid)?;
+        if let Some((_, opts)) = auth {
+            let now = opts.now_unix_s;
+            if let Some(not_before) = manifest.not_before_unix_s
+                && now < not_before
+            {
+                return Err(BundleError::NotYetValid { not_before, now });
+            }
+            if let Some(expires) = manifest.expires_unix_s
+                && now >= expires
+            {
+                return Err(BundleError::Expired { expires, now });
+            }
+            if let Some(accepted) = (opts.last_accepted)(&manifest.object.id)
+                && manifest.version < accepted
+            {
+                return Err(BundleError::Rollback {
+                    object: manifest.object.id.clone(),
+                    version: manifest.version,
+                    accepted,
+                });
+            }
         }
         let mut offsets = Vec::with_capacity(manifest.sections.len());
         let mut at = signed_end;
@@ -217,7 +241,7 @@ impl<R: Read + Seek> BundleReader<R> {
             return Err(BundleError::TrailingBytes { extra: file_len - at });
         }
         let manifest_hash = *blake3::hash(manifest_bytes).as_bytes();
-        Ok(Self { src, manifest, manifest_hash, key_id, offsets, file_len })
+        Ok(Self { src, manifest, manifest_hash, key_id, offsets, file_len, authenticated: auth.is_some() })
     }
 
     /// The verified manifest (signature, validity and version already checked).
@@ -282,6 +306,7 @@ impl<R: Read + Seek> BundleReader<R> {
             peaks,
             manifest_hash: self.manifest_hash,
             key_id: self.key_id,
+            authenticated: self.authenticated,
             src: self.src,
             offsets: self.offsets,
         })

@@ -1,0 +1,331 @@
+//! The appliance's TOML configuration: every key, its default and its accepted range.
+//! `systemd/restage-appliance.toml` is the documented example; unknown keys are refused.
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+use thiserror::Error;
+
+#[derive(Debug, Error)]
+pub enum ConfigError {
+    #[error("config {path}: cannot read: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("config {path}: {message}")]
+    Parse { path: PathBuf, message: String },
+    #[error("config {path}: {key} = {value} (expected {expected})")]
+    Range { path: PathBuf, key: &'static str, value: String, expected: &'static str },
+}
+
+/// The whole configuration file.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Config {
+    /// Directory of trusted public keys (`*.pub.pem`, SPKI PEM); several keys allow rotation.
+    pub trust_dir: PathBuf,
+    /// Directory for the ledger (`ledger.sqlite`) and the active bundle (`active.bundle`);
+    /// systemd's `StateDirectory=` (`/var/lib/restage`).
+    pub state_dir: PathBuf,
+    /// The bundle to play. Default: `STATE_DIR/active.bundle`, where `install` puts it.
+    #[serde(default)]
+    pub bundle: Option<PathBuf>,
+    #[serde(default)]
+    pub player: PlayerConfig,
+    #[serde(default)]
+    pub ledger: LedgerConfig,
+    pub output: OutputConfig,
+    #[serde(default)]
+    pub inputs: InputsConfig,
+}
+
+/// What the projectors do between showings.
+#[derive(Clone, Copy, Debug, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum IdleMode {
+    /// Show the bundle's original scene (charged at its peak lux).
+    Original,
+    /// Show black frames with the projectors on (charged at the black level).
+    Black,
+    /// Outputs off (charged nothing: use only where a projector without signal emits no light).
+    Off,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PlayerConfig {
+    /// Between showings: "original", "black" or "off". Default: the bundle policy's idle mode.
+    /// Only a darker choice than the policy's takes effect (off < black < a scene).
+    pub idle: Option<IdleMode>,
+    /// Length of the closing cross-fade in ms (0..=10000). Default 1500.
+    pub fade_ms: u64,
+    /// Frames per second of the cross-fade (1..=120). Default 30.
+    pub fade_fps: u32,
+    /// Presses closer than this to the last scene change are ignored (ms, 0..=10000): a
+    /// bouncing or flooding button cannot strobe the object. Default 400.
+    pub min_press_interval_ms: u64,
+    /// Optional stricter maximum continuous showing than the bundle's policy (ms). The
+    /// bundle's value always applies; this can only shorten it.
+    pub max_showing_ms: Option<u64>,
+    /// Optional longer cooldown than the bundle's policy (ms); can only lengthen it.
+    pub cooldown_ms: Option<u64>,
+}
+
+impl Default for PlayerConfig {
+    fn default() -> Self {
+        Self {
+            idle: None,
+            fade_ms: 1500,
+            fade_fps: 30,
+            min_press_interval_ms: 400,
+            max_showing_ms: None,
+            cooldown_ms: None,
+        }
+    }
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LedgerConfig {
+    /// Length of one exposure reservation in ms (100..=60000). Default 5000.
+    pub reserve_ms: u64,
+    /// Renew a reservation this many ms before it runs out (10..reserve_ms). Default 1000.
+    pub renew_ahead_ms: u64,
+    /// Offset of local time from UTC in minutes (-840..=840); days of the daily budget begin
+    /// at local midnight. Default 0.
+    pub utc_offset_minutes: i32,
+}
+
+impl Default for LedgerConfig {
+    fn default() -> Self {
+        Self { reserve_ms: 5000, renew_ahead_ms: 1000, utc_offset_minutes: 0 }
+    }
+}
+
+/// Which display output drives the projectors.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase", deny_unknown_fields)]
+pub enum OutputConfig {
+    /// Records every frame and its timestamp into `dir` (tests, demos).
+    Headless {
+        dir: PathBuf,
+        /// Projector count when no bundle is loaded (1..=8). Default 3.
+        #[serde(default = "three")]
+        projectors: usize,
+    },
+    /// A development window (needs the `window` feature and a display); space or click = press.
+    Window {
+        #[serde(default = "three")]
+        projectors: usize,
+    },
+    /// DRM/KMS on the stage machine: `card` (e.g. /dev/dri/card0) and one connector name per
+    /// projector in projector order (e.g. ["HDMI-A-1", "HDMI-A-2", "DP-1"]).
+    Kms { card: PathBuf, connectors: Vec<String> },
+}
+
+fn three() -> usize {
+    3
+}
+
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct InputsConfig {
+    /// Read `press`/`status`/`stop`/`reload` lines from standard input (development).
+    pub stdin: bool,
+    /// The operators' control socket (a Unix stream socket), e.g. /run/restage/control.sock.
+    pub control_socket: Option<PathBuf>,
+    pub serial: Option<SerialConfig>,
+    pub evdev: Option<EvdevConfig>,
+    pub gpio: Option<GpioConfig>,
+}
+
+/// A serial button box speaking the line protocol in `input::serial`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SerialConfig {
+    /// Device path, e.g. /dev/ttyUSB0.
+    pub path: PathBuf,
+    /// Baud rate (300..=4000000). Default 9600.
+    #[serde(default = "baud")]
+    pub baud: u32,
+}
+
+fn baud() -> u32 {
+    9600
+}
+
+/// A USB keypad or keyboard read through evdev.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvdevConfig {
+    /// Device path, e.g. /dev/input/by-id/usb-...-event-kbd.
+    pub path: PathBuf,
+    /// Key names that count as the button (evdev names). Default ["KEY_ENTER", "KEY_KPENTER",
+    /// "KEY_SPACE"].
+    #[serde(default = "default_keys")]
+    pub keys: Vec<String>,
+}
+
+fn default_keys() -> Vec<String> {
+    vec!["KEY_ENTER".into(), "KEY_KPENTER".into(), "KEY_SPACE".into()]
+}
+
+/// A push button on a Raspberry Pi GPIO pin (needs the `gpio` feature).
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GpioConfig {
+    /// BCM pin number (0..=27).
+    pub pin: u8,
+    /// The button pulls the pin low when pressed (internal pull-up on). Default true.
+    #[serde(default = "yes")]
+    pub active_low: bool,
+    /// Debounce time in ms (1..=500). Default 30.
+    #[serde(default = "debounce")]
+    pub debounce_ms: u64,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn debounce() -> u64 {
+    30
+}
+
+impl Config {
+    /// Reads, parses and checks a configuration file.
+    pub fn load(path: &Path) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| ConfigError::Read { path: path.to_path_buf(), source })?;
+        Self::parse(&text, path)
+    }
+
+    /// Parses and checks configuration text; `path` names it in errors.
+    pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
+        let config: Config = toml::from_str(text)
+            .map_err(|e| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
+        config.check(path)?;
+        Ok(config)
+    }
+
+    /// The bundle path: the configured one, or `STATE_DIR/active.bundle`.
+    pub fn bundle_path(&self) -> PathBuf {
+        self.bundle.clone().unwrap_or_else(|| self.state_dir.join(ACTIVE_BUNDLE))
+    }
+
+    fn check(&self, path: &Path) -> Result<(), ConfigError> {
+        let range = |key, value: String, expected| ConfigError::Range {
+            path: path.to_path_buf(),
+            key,
+            value,
+            expected,
+        };
+        let p = &self.player;
+        if p.fade_ms > 10_000 {
+            return Err(range("player.fade_ms", p.fade_ms.to_string(), "0..=10000"));
+        }
+        if !(1..=120).contains(&p.fade_fps) {
+            return Err(range("player.fade_fps", p.fade_fps.to_string(), "1..=120"));
+        }
+        if p.min_press_interval_ms > 10_000 {
+            return Err(range(
+                "player.min_press_interval_ms",
+                p.min_press_interval_ms.to_string(),
+                "0..=10000",
+            ));
+        }
+        if p.max_showing_ms == Some(0) {
+            return Err(range("player.max_showing_ms", "0".into(), "at least 1"));
+        }
+        let l = &self.ledger;
+        if !(100..=60_000).contains(&l.reserve_ms) {
+            return Err(range("ledger.reserve_ms", l.reserve_ms.to_string(), "100..=60000"));
+        }
+        if l.renew_ahead_ms < 10 || l.renew_ahead_ms >= l.reserve_ms {
+            return Err(range(
+                "ledger.renew_ahead_ms",
+                l.renew_ahead_ms.to_string(),
+                "10..ledger.reserve_ms",
+            ));
+        }
+        if !(-840..=840).contains(&l.utc_offset_minutes) {
+            return Err(range("ledger.utc_offset_minutes", l.utc_offset_minutes.to_string(), "-840..=840"));
+        }
+        match &self.output {
+            OutputConfig::Headless { projectors, .. } | OutputConfig::Window { projectors } => {
+                if !(1..=8).contains(projectors) {
+                    return Err(range("output.projectors", projectors.to_string(), "1..=8"));
+                }
+            }
+            OutputConfig::Kms { connectors, .. } => {
+                if !(1..=8).contains(&connectors.len()) {
+                    return Err(range(
+                        "output.connectors",
+                        format!("{connectors:?}"),
+                        "1..=8 connector names",
+                    ));
+                }
+            }
+        }
+        if let Some(s) = &self.inputs.serial
+            && !(300..=4_000_000).contains(&s.baud)
+        {
+            return Err(range("inputs.serial.baud", s.baud.to_string(), "300..=4000000"));
+        }
+        if let Some(g) = &self.inputs.gpio {
+            if g.pin > 27 {
+                return Err(range("inputs.gpio.pin", g.pin.to_string(), "0..=27 (BCM)"));
+            }
+            if !(1..=500).contains(&g.debounce_ms) {
+                return Err(range("inputs.gpio.debounce_ms", g.debounce_ms.to_string(), "1..=500"));
+            }
+        }
+        if let Some(e) = &self.inputs.evdev
+            && e.keys.is_empty()
+        {
+            return Err(range("inputs.evdev.keys", "[]".into(), "at least one key name"));
+        }
+        Ok(())
+    }
+}
+
+/// File name of the active bundle inside the state directory.
+pub const ACTIVE_BUNDLE: &str = "active.bundle";
+/// File name of the ledger inside the state directory.
+pub const LEDGER_FILE: &str = "ledger.sqlite";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const EXAMPLE: &str = include_str!("../../systemd/restage-appliance.toml");
+
+    #[test]
+    fn documented_example_parses() {
+        let c = Config::parse(EXAMPLE, Path::new("example.toml")).unwrap();
+        assert_eq!(c.bundle_path(), Path::new("/var/lib/restage/active.bundle"));
+        assert!(matches!(c.output, OutputConfig::Kms { .. }));
+        assert!(c.inputs.serial.is_some());
+    }
+
+    #[test]
+    fn unknown_key_is_refused_with_its_name() {
+        let text = "trust_dir = \"/t\"\nstate_dir = \"/s\"\nbogus = 1\n[output]\nkind = \"window\"\n";
+        let e = Config::parse(text, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("c.toml") && e.contains("bogus"), "{e}");
+    }
+
+    #[test]
+    fn out_of_range_names_key_and_range() {
+        let text =
+            "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[player]\nfade_fps = 0\n[output]\nkind = \"window\"\n";
+        let e = Config::parse(text, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("player.fade_fps") && e.contains("1..=120"), "{e}");
+    }
+
+    #[test]
+    fn renew_ahead_must_be_below_reserve() {
+        let text = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[ledger]\nreserve_ms = 500\nrenew_ahead_ms = 500\n\
+                    [output]\nkind = \"headless\"\ndir = \"/r\"\n";
+        let e = Config::parse(text, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("ledger.renew_ahead_ms"), "{e}");
+    }
+}

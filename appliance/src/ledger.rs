@@ -1,0 +1,796 @@
+//! The lux-hour ledger: an SQLite database (WAL, synchronous=FULL) in the state directory.
+//!
+//! Exposure is reserve-then-commit: a row `[start, end]` at a lux level is written before the
+//! light goes on, extended before it runs out, and shrunk to the actual end once the light is
+//! off. After a crash the reservation stands, so exposure is over-counted, never under-counted.
+//! It also holds the highest accepted bundle version per object (anti-rollback), the showings,
+//! budget warnings and notable events, for `status`.
+
+use std::path::{Path, PathBuf};
+
+use rusqlite::{Connection, OpenFlags, OptionalExtension, params};
+use serde::Serialize;
+use thiserror::Error;
+
+use crate::player::{Accountant, LeaseId, LightKind, Refusal};
+
+/// Schema versions, in order; `MIGRATIONS[i]` takes `user_version` i to i+1.
+const MIGRATIONS: &[&str] = &[
+    // 1: exposure, accepted versions, active bundle, showings, warnings, events.
+    "CREATE TABLE exposure (
+        id INTEGER PRIMARY KEY,
+        object TEXT NOT NULL,
+        kind TEXT NOT NULL,
+        label TEXT NOT NULL,
+        lux REAL NOT NULL CHECK (lux >= 0),
+        start_ms INTEGER NOT NULL,
+        end_ms INTEGER NOT NULL CHECK (end_ms >= start_ms),
+        committed INTEGER NOT NULL DEFAULT 0 CHECK (committed IN (0, 1))
+    );
+    CREATE INDEX exposure_end ON exposure (object, end_ms);
+    CREATE TABLE accepted_version (
+        object TEXT PRIMARY KEY,
+        version INTEGER NOT NULL,
+        bundle_hash TEXT NOT NULL,
+        accepted_ms INTEGER NOT NULL
+    );
+    CREATE TABLE active_bundle (
+        id INTEGER PRIMARY KEY CHECK (id = 1),
+        object TEXT NOT NULL,
+        version INTEGER NOT NULL,
+        bundle_hash TEXT NOT NULL,
+        path TEXT NOT NULL,
+        loaded_ms INTEGER NOT NULL,
+        daily_lux_hours REAL NOT NULL,
+        annual_lux_hours REAL NOT NULL,
+        warn_at TEXT NOT NULL
+    );
+    CREATE TABLE showing (
+        id INTEGER PRIMARY KEY,
+        object TEXT NOT NULL,
+        started_ms INTEGER NOT NULL,
+        ended_ms INTEGER NOT NULL,
+        scenes TEXT NOT NULL,
+        ended_by TEXT NOT NULL
+    );
+    CREATE TABLE warning (
+        id INTEGER PRIMARY KEY,
+        at_ms INTEGER NOT NULL,
+        object TEXT NOT NULL,
+        budget TEXT NOT NULL,
+        period TEXT NOT NULL,
+        threshold REAL NOT NULL,
+        used REAL NOT NULL,
+        budget_lux_hours REAL NOT NULL,
+        UNIQUE (object, budget, period, threshold)
+    );
+    CREATE TABLE event (
+        id INTEGER PRIMARY KEY,
+        at_ms INTEGER NOT NULL,
+        kind TEXT NOT NULL,
+        detail TEXT NOT NULL
+    );",
+];
+
+/// The schema version this program writes.
+pub const SCHEMA_VERSION: u32 = MIGRATIONS.len() as u32;
+
+const MS_PER_DAY: i64 = 86_400_000;
+const MS_PER_HOUR: f64 = 3_600_000.0;
+/// The annual budget is over any 365 days (rolling), so no new-year reset lets light surge.
+const YEAR_MS: i64 = 365 * MS_PER_DAY;
+
+#[derive(Debug, Error)]
+pub enum LedgerError {
+    #[error("ledger {path}: cannot open: {source}")]
+    Open { path: PathBuf, source: rusqlite::Error },
+    #[error("ledger {path}: {source}")]
+    Sql { path: PathBuf, source: rusqlite::Error },
+    #[error("ledger {path}: schema version {found} is newer than this program's (1..={supported})")]
+    SchemaTooNew { path: PathBuf, found: u32, supported: u32 },
+    #[error("ledger {path}: integrity check failed: {detail}")]
+    Corrupt { path: PathBuf, detail: String },
+    #[error("bundle for object {object}: version {offered} is older than the accepted version {accepted}")]
+    Rollback { object: String, offered: u64, accepted: u64 },
+    #[error(
+        "bundle for object {object}: version {version} was accepted with a different content ({accepted_hash})"
+    )]
+    SameVersionDifferentContent { object: String, version: u64, accepted_hash: String },
+}
+
+/// The budgets the ledger enforces (from the active bundle's policy).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Budgets {
+    pub daily_lux_hours: f64,
+    pub annual_lux_hours: f64,
+    pub warn_at: Vec<f64>,
+}
+
+/// The active bundle as recorded.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ActiveBundle {
+    pub object: String,
+    pub version: u64,
+    pub bundle_hash: String,
+    pub path: String,
+    pub loaded_ms: i64,
+    pub budgets: Budgets,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct ShowingRecord {
+    pub started_ms: i64,
+    pub ended_ms: i64,
+    pub scenes: String,
+    pub ended_by: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct WarningRecord {
+    pub at_ms: i64,
+    pub budget: String,
+    pub period: String,
+    pub threshold: f64,
+    pub used: f64,
+    pub budget_lux_hours: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct EventRecord {
+    pub at_ms: i64,
+    pub kind: String,
+    pub detail: String,
+}
+
+/// What `status` prints.
+#[derive(Clone, Debug, Serialize)]
+pub struct LedgerStatus {
+    pub schema_version: u32,
+    pub active: Option<ActiveBundle>,
+    /// Local calendar day (YYYY-MM-DD) the daily figures are for.
+    pub day: String,
+    pub day_used_lux_hours: f64,
+    pub day_left_lux_hours: Option<f64>,
+    pub year_used_lux_hours: f64,
+    pub year_left_lux_hours: Option<f64>,
+    pub total_lux_hours: f64,
+    /// Reservations never committed (a crash or power cut; counted in full).
+    pub open_reservations: u64,
+    pub warnings: Vec<WarningRecord>,
+    pub last_showings: Vec<ShowingRecord>,
+    pub last_events: Vec<EventRecord>,
+}
+
+/// The ledger.
+#[derive(Debug)]
+pub struct Ledger {
+    conn: Connection,
+    path: PathBuf,
+    utc_offset_minutes: i32,
+    /// Object and budgets in force (set when a bundle is activated); no light without them.
+    active: Option<(String, Budgets)>,
+}
+
+impl Ledger {
+    /// Opens (creating if needed) the ledger at `path` and brings its schema up to date.
+    pub fn open(path: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+        let conn =
+            Connection::open(path).map_err(|source| LedgerError::Open { path: path.into(), source })?;
+        Self::setup(conn, path, utc_offset_minutes, true)
+    }
+
+    /// Opens an existing ledger read-only (for `status` while the appliance runs).
+    pub fn open_read_only(path: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+        let conn = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .map_err(|source| LedgerError::Open { path: path.into(), source })?;
+        Self::setup(conn, path, utc_offset_minutes, false)
+    }
+
+    /// A ledger in memory (tests).
+    pub fn open_in_memory(utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+        let path = Path::new(":memory:");
+        let conn =
+            Connection::open_in_memory().map_err(|source| LedgerError::Open { path: path.into(), source })?;
+        Self::setup(conn, path, utc_offset_minutes, true)
+    }
+
+    fn setup(
+        conn: Connection,
+        path: &Path,
+        utc_offset_minutes: i32,
+        write: bool,
+    ) -> Result<Ledger, LedgerError> {
+        let sql = |source| LedgerError::Sql { path: path.into(), source };
+        conn.busy_timeout(std::time::Duration::from_secs(5)).map_err(sql)?;
+        if write {
+            // WAL: readers (status) never block the player; FULL: a committed reservation
+            // survives a power cut.
+            conn.pragma_update(None, "journal_mode", "WAL").map_err(sql)?;
+            conn.pragma_update(None, "synchronous", "FULL").map_err(sql)?;
+        }
+        let mut ledger = Ledger { conn, path: path.into(), utc_offset_minutes, active: None };
+        ledger.migrate(write)?;
+        if let Some(a) = ledger.active_bundle()? {
+            ledger.active = Some((a.object, a.budgets));
+        }
+        Ok(ledger)
+    }
+
+    fn sql(&self) -> impl Fn(rusqlite::Error) -> LedgerError + '_ {
+        |source| LedgerError::Sql { path: self.path.clone(), source }
+    }
+
+    fn migrate(&mut self, write: bool) -> Result<(), LedgerError> {
+        let found: u32 =
+            self.conn.pragma_query_value(None, "user_version", |r| r.get(0)).map_err(self.sql())?;
+        if found > SCHEMA_VERSION {
+            return Err(LedgerError::SchemaTooNew {
+                path: self.path.clone(),
+                found,
+                supported: SCHEMA_VERSION,
+            });
+        }
+        if !write {
+            return Ok(());
+        }
+        for (i, step) in MIGRATIONS.iter().enumerate().skip(found as usize) {
+            let path = self.path.clone();
+            let sql = |source| LedgerError::Sql { path: path.clone(), source };
+            let tx = self.conn.transaction().map_err(sql)?;
+            tx.execute_batch(step).map_err(sql)?;
+            tx.pragma_update(None, "user_version", (i + 1) as u32).map_err(sql)?;
+            tx.commit().map_err(sql)?;
+            tracing::info!(version = i + 1, "ledger schema migrated");
+        }
+        Ok(())
+    }
+
+    /// SQLite's own consistency check.
+    pub fn integrity_check(&self) -> Result<(), LedgerError> {
+        let rows: Vec<String> = self
+            .conn
+            .prepare("PRAGMA integrity_check")
+            .and_then(|mut s| s.query_map([], |r| r.get(0))?.collect())
+            .map_err(self.sql())?;
+        if rows == ["ok"] {
+            Ok(())
+        } else {
+            Err(LedgerError::Corrupt { path: self.path.clone(), detail: rows.join("; ") })
+        }
+    }
+
+    /// The highest accepted version for `object`, if any.
+    pub fn accepted_version(&self, object: &str) -> Result<Option<u64>, LedgerError> {
+        self.conn
+            .query_row("SELECT version FROM accepted_version WHERE object = ?1", [object], |r| {
+                r.get::<_, i64>(0)
+            })
+            .optional()
+            .map(|v| v.map(|v| v as u64))
+            .map_err(self.sql())
+    }
+
+    /// Refuses a bundle version below the highest accepted one for its object (or the same
+    /// version with different content).
+    pub fn check_version(&self, object: &str, version: u64, bundle_hash: &str) -> Result<(), LedgerError> {
+        let row: Option<(i64, String)> = self
+            .conn
+            .query_row("SELECT version, bundle_hash FROM accepted_version WHERE object = ?1", [object], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })
+            .optional()
+            .map_err(self.sql())?;
+        match row {
+            Some((accepted, _)) if (accepted as u64) > version => Err(LedgerError::Rollback {
+                object: object.into(),
+                offered: version,
+                accepted: accepted as u64,
+            }),
+            Some((accepted, hash)) if accepted as u64 == version && hash != bundle_hash => {
+                Err(LedgerError::SameVersionDifferentContent {
+                    object: object.into(),
+                    version,
+                    accepted_hash: hash,
+                })
+            }
+            _ => Ok(()),
+        }
+    }
+
+    /// Records `version` as accepted for `object` (only after everything verified).
+    pub fn accept_version(
+        &mut self,
+        object: &str,
+        version: u64,
+        bundle_hash: &str,
+        now_ms: i64,
+    ) -> Result<(), LedgerError> {
+        self.check_version(object, version, bundle_hash)?;
+        self.conn
+            .execute(
+                "INSERT INTO accepted_version (object, version, bundle_hash, accepted_ms) VALUES (?1, ?2, ?3, ?4)
+                 ON CONFLICT (object) DO UPDATE SET version = ?2, bundle_hash = ?3, accepted_ms = ?4",
+                params![object, version as i64, bundle_hash, now_ms],
+            )
+            .map_err(self.sql())?;
+        Ok(())
+    }
+
+    /// Makes `bundle` the one whose budgets are enforced (and reported by `status`).
+    pub fn set_active(&mut self, bundle: &ActiveBundle) -> Result<(), LedgerError> {
+        let warn = serde_json::to_string(&bundle.budgets.warn_at).unwrap_or_else(|_| "[]".into());
+        self.conn
+            .execute(
+                "INSERT OR REPLACE INTO active_bundle
+                 (id, object, version, bundle_hash, path, loaded_ms, daily_lux_hours, annual_lux_hours, warn_at)
+                 VALUES (1, ?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8)",
+                params![
+                    bundle.object,
+                    bundle.version as i64,
+                    bundle.bundle_hash,
+                    bundle.path,
+                    bundle.loaded_ms,
+                    bundle.budgets.daily_lux_hours,
+                    bundle.budgets.annual_lux_hours,
+                    warn
+                ],
+            )
+            .map_err(self.sql())?;
+        self.active = Some((bundle.object.clone(), bundle.budgets.clone()));
+        Ok(())
+    }
+
+    pub fn active_bundle(&self) -> Result<Option<ActiveBundle>, LedgerError> {
+        self.conn
+            .query_row(
+                "SELECT object, version, bundle_hash, path, loaded_ms, daily_lux_hours, annual_lux_hours, warn_at
+                 FROM active_bundle WHERE id = 1",
+                [],
+                |r| {
+                    let warn: String = r.get(7)?;
+                    Ok(ActiveBundle {
+                        object: r.get(0)?,
+                        version: r.get::<_, i64>(1)? as u64,
+                        bundle_hash: r.get(2)?,
+                        path: r.get(3)?,
+                        loaded_ms: r.get(4)?,
+                        budgets: Budgets {
+                            daily_lux_hours: r.get(5)?,
+                            annual_lux_hours: r.get(6)?,
+                            warn_at: serde_json::from_str(&warn).unwrap_or_default(),
+                        },
+                    })
+                },
+            )
+            .optional()
+            .map_err(self.sql())
+    }
+
+    /// Records a notable event (load, refusal, fault) for `status`.
+    pub fn log_event(&mut self, at_ms: i64, kind: &str, detail: &str) -> Result<(), LedgerError> {
+        self.conn
+            .execute(
+                "INSERT INTO event (at_ms, kind, detail) VALUES (?1, ?2, ?3)",
+                params![at_ms, kind, detail],
+            )
+            .map_err(self.sql())?;
+        Ok(())
+    }
+
+    /// Lux-hours charged to `object` within `[from_ms, to_ms)`, reservations counted in full.
+    pub fn used(&self, object: &str, from_ms: i64, to_ms: i64) -> Result<f64, LedgerError> {
+        let lux_ms: f64 = self
+            .conn
+            .query_row(
+                "SELECT COALESCE(SUM(lux * (MIN(end_ms, ?3) - MAX(start_ms, ?2))), 0.0) FROM exposure
+                 WHERE object = ?1 AND end_ms > ?2 AND start_ms < ?3",
+                params![object, from_ms, to_ms],
+                |r| r.get(0),
+            )
+            .map_err(self.sql())?;
+        Ok(lux_ms / MS_PER_HOUR)
+    }
+
+    /// Every lux-hour ever charged to `object`.
+    pub fn total(&self, object: &str) -> Result<f64, LedgerError> {
+        self.used(object, i64::MIN / 2, i64::MAX / 2)
+    }
+
+    /// Start (unix ms) of the local day containing `t_ms`.
+    pub fn day_start(&self, t_ms: i64) -> i64 {
+        let offset = i64::from(self.utc_offset_minutes) * 60_000;
+        (t_ms + offset).div_euclid(MS_PER_DAY) * MS_PER_DAY - offset
+    }
+
+    fn day_name(&self, t_ms: i64) -> String {
+        let offset = i64::from(self.utc_offset_minutes) * 60_000;
+        let (y, m, d) = civil_from_days((t_ms + offset).div_euclid(MS_PER_DAY));
+        format!("{y:04}-{m:02}-{d:02}")
+    }
+
+    /// Would `extra_lux_ms` more, charged at `[from, until]`, fit both budgets?
+    fn check_budgets(&self, from: i64, until: i64, extra_lux_ms: f64) -> Result<(), Refusal> {
+        let Some((object, b)) = &self.active else {
+            return Err(Refusal::Exhausted("no active bundle: no budget to charge".into()));
+        };
+        let fail = |e: LedgerError| Refusal::Failed(e.to_string());
+        let extra = extra_lux_ms / MS_PER_HOUR;
+        let day = self.day_start(from);
+        let day_used = self.used(object, day, day + MS_PER_DAY).map_err(fail)?;
+        if day_used + extra > b.daily_lux_hours {
+            return Err(Refusal::Exhausted(format!(
+                "daily budget: {day_used:.4} of {:.4} lx·h used on {}, {extra:.4} more asked",
+                b.daily_lux_hours,
+                self.day_name(from)
+            )));
+        }
+        let year_used = self.used(object, until - YEAR_MS, until).map_err(fail)?;
+        if year_used + extra > b.annual_lux_hours {
+            return Err(Refusal::Exhausted(format!(
+                "annual budget: {year_used:.4} of {:.4} lx·h used in the last 365 days, {extra:.4} more asked",
+                b.annual_lux_hours
+            )));
+        }
+        Ok(())
+    }
+
+    /// Logs and records a warning for each threshold crossed (once per day, or per week for
+    /// the annual budget).
+    fn warn_if_needed(&mut self, at: i64) -> Result<(), LedgerError> {
+        let Some((object, b)) = self.active.clone() else { return Ok(()) };
+        let day = self.day_start(at);
+        let day_used = self.used(&object, day, day + MS_PER_DAY)?;
+        let year_used = self.used(&object, at - YEAR_MS, at)?;
+        let week = at.div_euclid(7 * MS_PER_DAY);
+        let checks = [
+            ("daily", self.day_name(at), day_used, b.daily_lux_hours),
+            ("annual", format!("week-{week}"), year_used, b.annual_lux_hours),
+        ];
+        for (budget, period, used, limit) in checks {
+            for &threshold in &b.warn_at {
+                if limit > 0.0 && used >= threshold * limit {
+                    let n = self
+                        .conn
+                        .execute(
+                            "INSERT OR IGNORE INTO warning (at_ms, object, budget, period, threshold, used, budget_lux_hours)
+                             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7)",
+                            params![at, object, budget, period, threshold, used, limit],
+                        )
+                        .map_err(self.sql())?;
+                    if n > 0 {
+                        tracing::warn!(
+                            budget,
+                            percent = threshold * 100.0,
+                            used_lux_hours = used,
+                            budget_lux_hours = limit,
+                            "light budget warning"
+                        );
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The report `status` prints.
+    pub fn status(&self, now_ms: i64) -> Result<LedgerStatus, LedgerError> {
+        let active = self.active_bundle()?;
+        let object = active.as_ref().map(|a| a.object.clone()).unwrap_or_default();
+        let day = self.day_start(now_ms);
+        let day_used = self.used(&object, day, day + MS_PER_DAY)?;
+        let year_used = self.used(&object, now_ms - YEAR_MS, now_ms)?;
+        let total = self.total(&object)?;
+        let open: i64 = self
+            .conn
+            .query_row("SELECT COUNT(*) FROM exposure WHERE committed = 0", [], |r| r.get(0))
+            .map_err(self.sql())?;
+        let warnings = self
+            .conn
+            .prepare(
+                "SELECT at_ms, budget, period, threshold, used, budget_lux_hours FROM warning
+                 WHERE at_ms >= ?1 ORDER BY at_ms DESC LIMIT 20",
+            )
+            .and_then(|mut s| {
+                s.query_map([now_ms - 7 * MS_PER_DAY], |r| {
+                    Ok(WarningRecord {
+                        at_ms: r.get(0)?,
+                        budget: r.get(1)?,
+                        period: r.get(2)?,
+                        threshold: r.get(3)?,
+                        used: r.get(4)?,
+                        budget_lux_hours: r.get(5)?,
+                    })
+                })?
+                .collect()
+            })
+            .map_err(self.sql())?;
+        let last_showings = self
+            .conn
+            .prepare("SELECT started_ms, ended_ms, scenes, ended_by FROM showing ORDER BY id DESC LIMIT 10")
+            .and_then(|mut s| {
+                s.query_map([], |r| {
+                    Ok(ShowingRecord {
+                        started_ms: r.get(0)?,
+                        ended_ms: r.get(1)?,
+                        scenes: r.get(2)?,
+                        ended_by: r.get(3)?,
+                    })
+                })?
+                .collect()
+            })
+            .map_err(self.sql())?;
+        let last_events = self
+            .conn
+            .prepare("SELECT at_ms, kind, detail FROM event ORDER BY id DESC LIMIT 10")
+            .and_then(|mut s| {
+                s.query_map([], |r| Ok(EventRecord { at_ms: r.get(0)?, kind: r.get(1)?, detail: r.get(2)? }))?
+                    .collect()
+            })
+            .map_err(self.sql())?;
+        let budgets = active.as_ref().map(|a| a.budgets.clone());
+        Ok(LedgerStatus {
+            schema_version: SCHEMA_VERSION,
+            day: self.day_name(now_ms),
+            day_used_lux_hours: day_used,
+            day_left_lux_hours: budgets.as_ref().map(|b| (b.daily_lux_hours - day_used).max(0.0)),
+            year_used_lux_hours: year_used,
+            year_left_lux_hours: budgets.as_ref().map(|b| (b.annual_lux_hours - year_used).max(0.0)),
+            total_lux_hours: total,
+            open_reservations: open as u64,
+            active,
+            warnings,
+            last_showings,
+            last_events,
+        })
+    }
+}
+
+impl Accountant for Ledger {
+    fn reserve(
+        &mut self,
+        kind: LightKind,
+        label: &str,
+        lux: f64,
+        from: i64,
+        until: i64,
+    ) -> Result<LeaseId, Refusal> {
+        if !(lux.is_finite() && lux >= 0.0) || until < from {
+            return Err(Refusal::Failed(format!("bad reservation: {lux} lx over [{from}, {until}]")));
+        }
+        self.check_budgets(from, until, lux * (until - from) as f64)?;
+        let object = self.active.as_ref().map(|(o, _)| o.clone()).unwrap_or_default();
+        self.conn
+            .execute(
+                "INSERT INTO exposure (object, kind, label, lux, start_ms, end_ms) VALUES (?1, ?2, ?3, ?4, ?5, ?6)",
+                params![object, kind.as_str(), label, lux, from, until],
+            )
+            .map_err(|e| Refusal::Failed(format!("{}: {e}", self.path.display())))?;
+        let id = self.conn.last_insert_rowid();
+        if let Err(e) = self.warn_if_needed(until) {
+            tracing::warn!(%e, "could not record a budget warning");
+        }
+        Ok(id)
+    }
+
+    fn extend(&mut self, lease: LeaseId, until: i64) -> Result<(), Refusal> {
+        let (lux, end): (f64, i64) = self
+            .conn
+            .query_row("SELECT lux, end_ms FROM exposure WHERE id = ?1", [lease], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })
+            .map_err(|e| Refusal::Failed(format!("{}: lease {lease}: {e}", self.path.display())))?;
+        if until <= end {
+            return Ok(());
+        }
+        self.check_budgets(end, until, lux * (until - end) as f64)?;
+        self.conn
+            .execute("UPDATE exposure SET end_ms = ?2 WHERE id = ?1 AND end_ms < ?2", params![lease, until])
+            .map_err(|e| Refusal::Failed(format!("{}: {e}", self.path.display())))?;
+        if let Err(e) = self.warn_if_needed(until) {
+            tracing::warn!(%e, "could not record a budget warning");
+        }
+        Ok(())
+    }
+
+    fn commit(&mut self, lease: LeaseId, end: i64) -> Result<(), Refusal> {
+        // Only ever shrinks to the actual end, never below the start: the light was on until
+        // `end`, and the reservation already covers it.
+        self.conn
+            .execute(
+                "UPDATE exposure SET end_ms = MAX(start_ms, MIN(end_ms, ?2)), committed = 1 WHERE id = ?1",
+                params![lease, end],
+            )
+            .map_err(|e| Refusal::Failed(format!("{}: {e}", self.path.display())))?;
+        Ok(())
+    }
+
+    fn record_showing(
+        &mut self,
+        started: i64,
+        ended: i64,
+        scenes: &[String],
+        ended_by: &str,
+    ) -> Result<(), Refusal> {
+        let object = self.active.as_ref().map(|(o, _)| o.clone()).unwrap_or_default();
+        self.conn
+            .execute(
+                "INSERT INTO showing (object, started_ms, ended_ms, scenes, ended_by) VALUES (?1, ?2, ?3, ?4, ?5)",
+                params![object, started, ended, scenes.join(","), ended_by],
+            )
+            .map_err(|e| Refusal::Failed(format!("{}: {e}", self.path.display())))?;
+        Ok(())
+    }
+}
+
+/// (year, month, day) of a day count since 1970-01-01 (H. Hinnant's civil_from_days).
+fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    (y, m, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn active(daily: f64, annual: f64) -> ActiveBundle {
+        ActiveBundle {
+            object: "vase".into(),
+            version: 1,
+            bundle_hash: "h".into(),
+            path: "/b".into(),
+            loaded_ms: 0,
+            budgets: Budgets { daily_lux_hours: daily, annual_lux_hours: annual, warn_at: vec![0.75, 0.9] },
+        }
+    }
+
+    const H: i64 = 3_600_000;
+
+    #[test]
+    fn civil_dates() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(civil_from_days(19_723), (2024, 1, 1));
+        assert_eq!(civil_from_days(19_782), (2024, 2, 29));
+    }
+
+    #[test]
+    fn reserve_counts_in_full_until_committed() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        l.set_active(&active(1000.0, 10_000.0)).unwrap();
+        let id = l.reserve(LightKind::Showing, "r1", 100.0, 0, H).unwrap();
+        assert!((l.total("vase").unwrap() - 100.0).abs() < 1e-9);
+        l.commit(id, H / 2).unwrap();
+        assert!((l.total("vase").unwrap() - 50.0).abs() < 1e-9);
+        // A commit never grows a reservation, nor goes below its start.
+        l.commit(id, 10 * H).unwrap();
+        assert!((l.total("vase").unwrap() - 50.0).abs() < 1e-9);
+        l.extend(id, H).unwrap();
+        assert!((l.total("vase").unwrap() - 100.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn daily_budget_refuses_and_resets_next_day() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        l.set_active(&active(150.0, 10_000.0)).unwrap();
+        let a = l.reserve(LightKind::Showing, "r1", 100.0, 0, H).unwrap();
+        l.commit(a, H).unwrap();
+        let e = l.reserve(LightKind::Showing, "r1", 100.0, H, 2 * H).unwrap_err();
+        assert!(matches!(&e, Refusal::Exhausted(m) if m.contains("daily")), "{e:?}");
+        // 50 lx·h are left: half an hour at 100 lx fits.
+        l.reserve(LightKind::Showing, "r1", 100.0, H, H + H / 2).unwrap();
+        // The next day starts afresh.
+        l.reserve(LightKind::Showing, "r1", 100.0, 24 * H, 25 * H).unwrap();
+    }
+
+    #[test]
+    fn local_day_follows_utc_offset() {
+        let l = Ledger::open_in_memory(120).unwrap();
+        // 23:00 UTC is 01:00 the next day at UTC+2.
+        assert_eq!(l.day_start(23 * H), 22 * H);
+        assert_eq!(l.day_name(23 * H), "1970-01-02");
+    }
+
+    #[test]
+    fn annual_budget_is_rolling() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        l.set_active(&active(1000.0, 150.0)).unwrap();
+        l.reserve(LightKind::Idle, "black", 100.0, 0, H).unwrap();
+        let e = l.reserve(LightKind::Showing, "r1", 100.0, 100 * 24 * H, 100 * 24 * H + H).unwrap_err();
+        assert!(matches!(&e, Refusal::Exhausted(m) if m.contains("annual")), "{e:?}");
+        l.reserve(LightKind::Showing, "r1", 100.0, 366 * 24 * H, 366 * 24 * H + H).unwrap();
+    }
+
+    #[test]
+    fn warnings_at_thresholds_once_per_day() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        l.set_active(&active(100.0, 1e9)).unwrap();
+        let id = l.reserve(LightKind::Showing, "r1", 100.0, 0, H * 7 / 10).unwrap();
+        assert!(l.status(H).unwrap().warnings.is_empty());
+        l.extend(id, H * 8 / 10).unwrap();
+        l.extend(id, H * 85 / 100).unwrap();
+        let w = l.status(H).unwrap().warnings;
+        assert_eq!(w.len(), 1);
+        assert_eq!(w[0].threshold, 0.75);
+        l.extend(id, H * 95 / 100).unwrap();
+        assert_eq!(l.status(H).unwrap().warnings.len(), 2);
+    }
+
+    #[test]
+    fn anti_rollback() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        l.accept_version("vase", 3, "aaa", 0).unwrap();
+        l.check_version("vase", 3, "aaa").unwrap();
+        l.check_version("vase", 4, "bbb").unwrap();
+        l.check_version("other", 1, "ccc").unwrap();
+        assert!(matches!(l.check_version("vase", 2, "x"), Err(LedgerError::Rollback { accepted: 3, .. })));
+        assert!(matches!(
+            l.check_version("vase", 3, "x"),
+            Err(LedgerError::SameVersionDifferentContent { .. })
+        ));
+        l.accept_version("vase", 5, "ddd", 1).unwrap();
+        assert!(l.check_version("vase", 4, "bbb").is_err());
+    }
+
+    #[test]
+    fn no_light_without_an_active_bundle() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        assert!(matches!(l.reserve(LightKind::Idle, "black", 1.0, 0, 1000), Err(Refusal::Exhausted(_))));
+    }
+
+    #[test]
+    fn reopen_keeps_everything_and_schema_version() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("ledger.sqlite");
+        {
+            let mut l = Ledger::open(&p, 0).unwrap();
+            l.set_active(&active(1000.0, 10_000.0)).unwrap();
+            l.reserve(LightKind::Showing, "r1", 36.0, 0, 100_000).unwrap();
+        }
+        let l = Ledger::open(&p, 0).unwrap();
+        l.integrity_check().unwrap();
+        assert!((l.total("vase").unwrap() - 1.0).abs() < 1e-9);
+        let s = l.status(0).unwrap();
+        assert_eq!(s.schema_version, SCHEMA_VERSION);
+        assert_eq!(s.open_reservations, 1);
+        let ro = Ledger::open_read_only(&p, 0).unwrap();
+        assert!((ro.total("vase").unwrap() - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn newer_schema_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("ledger.sqlite");
+        Connection::open(&p).unwrap().pragma_update(None, "user_version", 99).unwrap();
+        let e = Ledger::open(&p, 0).unwrap_err();
+        assert!(matches!(e, LedgerError::SchemaTooNew { found: 99, .. }), "{e}");
+    }
+
+    #[test]
+    fn full_database_is_a_failure_not_a_grant() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        l.set_active(&active(1e9, 1e9)).unwrap();
+        // SQLite reports a full disk as SQLITE_FULL; a page cap gives the same error.
+        let pages: i64 = l.conn.pragma_query_value(None, "page_count", |r| r.get(0)).unwrap();
+        l.conn.pragma_update(None, "max_page_count", pages).unwrap();
+        let mut failed = false;
+        for i in 0..10_000 {
+            match l.reserve(LightKind::Showing, &"x".repeat(200), 1.0, i, i + 1) {
+                Ok(_) => {}
+                Err(Refusal::Failed(m)) => {
+                    assert!(m.contains("full"), "{m}");
+                    failed = true;
+                    break;
+                }
+                Err(e) => panic!("{e:?}"),
+            }
+        }
+        assert!(failed);
+    }
+}

@@ -1,0 +1,245 @@
+//! Loading a bundle: signature, validity, version (against the ledger's anti-rollback record)
+//! and every scene's light bound — recomputed here from the certificate by `restage-shared`'s
+//! independent check — before anything is shown. Only then is the version recorded.
+//! Frames are read again (and re-hashed) when needed; the idle scene and the first
+//! restoration stay in memory so a press shows light within a frame.
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions};
+use restage_shared::keys::{KeyError, TrustStore};
+use restage_shared::light::{XrgbFrame, max_irradiance};
+use restage_shared::policy::IdleMode as PolicyIdle;
+use thiserror::Error;
+
+use crate::config::IdleMode;
+use crate::ledger::{ActiveBundle, Budgets, Ledger, LedgerError};
+use crate::player::Look;
+use crate::show::{Policy, Response, Scene, SceneKind, Show};
+
+#[derive(Debug, Error)]
+pub enum LoadError {
+    #[error("trust directory {dir}: {source}")]
+    Trust { dir: PathBuf, source: KeyError },
+    #[error("bundle {path}: cannot open: {source}")]
+    Open { path: PathBuf, source: std::io::Error },
+    #[error("bundle {path} refused: {source}")]
+    Refused { path: PathBuf, source: BundleError },
+    #[error("bundle {path} refused: {source}")]
+    Version { path: PathBuf, source: LedgerError },
+    #[error("bundle {path} refused: {problem}")]
+    Unplayable { path: PathBuf, problem: String },
+    #[error("ledger: {0}")]
+    Ledger(LedgerError),
+}
+
+/// A loaded bundle: the verified show plus where its frames come from.
+#[derive(Debug)]
+pub struct Loaded {
+    pub show: Arc<Show>,
+    pub store: FrameStore,
+}
+
+/// Frames of the verified bundle, re-read (and re-hashed) from the file on demand; pinned
+/// scenes stay in memory.
+#[derive(Debug)]
+pub struct FrameStore {
+    bundle: VerifiedBundle<File>,
+    cache: HashMap<usize, Arc<Vec<Vec<u8>>>>,
+    pinned: Vec<usize>,
+}
+
+impl FrameStore {
+    /// Frames of scene `s`, one per projector.
+    pub fn scene(&mut self, s: usize) -> Result<Arc<Vec<Vec<u8>>>, BundleError> {
+        if let Some(f) = self.cache.get(&s) {
+            return Ok(f.clone());
+        }
+        let n = self.bundle.manifest.projectors.len();
+        let frames = Arc::new((0..n).map(|k| self.bundle.read_frame(s, k)).collect::<Result<Vec<_>, _>>()?);
+        // Keep the pinned scenes and the last one read (a press cycling back is quick).
+        let pinned = self.pinned.clone();
+        self.cache.retain(|k, _| pinned.contains(k));
+        self.cache.insert(s, frames.clone());
+        Ok(frames)
+    }
+}
+
+/// Verifies everything about the bundle at `path` (signature with a trusted key, validity
+/// at `now_unix_ms`, version against the ledger, every section's hash, every scene's light
+/// bound); returns it with its identifying hash (hex BLAKE3 of the manifest). Records nothing.
+pub fn open_verified(
+    path: &Path,
+    trust_dir: &Path,
+    ledger: &Ledger,
+    now_unix_ms: i64,
+) -> Result<(VerifiedBundle<File>, String), LoadError> {
+    // The one time of this load: validity is judged against it.
+    let now_s = now_unix_ms.div_euclid(1000);
+    let trust = TrustStore::load_dir(trust_dir)
+        .map_err(|source| LoadError::Trust { dir: trust_dir.into(), source })?;
+    let file = File::open(path).map_err(|source| LoadError::Open { path: path.into(), source })?;
+    let refused = |source| LoadError::Refused { path: path.into(), source };
+    let last = |object: &str| ledger.accepted_version(object).ok().flatten();
+    let opts = VerifyOptions { now_unix_s: now_s, last_accepted: &last, limits: Limits::default() };
+    let bundle =
+        BundleReader::open(file, &trust, &opts).map_err(refused)?.verify(|_| Ok(())).map_err(refused)?;
+    let hash: String = bundle.manifest_hash.iter().map(|b| format!("{b:02x}")).collect();
+    ledger
+        .check_version(&bundle.manifest.object.id, bundle.manifest.version, &hash)
+        .map_err(|source| LoadError::Version { path: path.into(), source })?;
+    Ok((bundle, hash))
+}
+
+/// Verifies and loads the bundle at `path`. `idle` is the config's idle override, if any.
+/// On success the version is recorded as accepted and the bundle made active in the ledger.
+pub fn load(
+    path: &Path,
+    trust_dir: &Path,
+    ledger: &mut Ledger,
+    now_unix_ms: i64,
+    idle: Option<IdleMode>,
+) -> Result<Loaded, LoadError> {
+    let (bundle, hash) = open_verified(path, trust_dir, ledger, now_unix_ms)?;
+    let m = &bundle.manifest;
+    let refused = |source| LoadError::Refused { path: path.into(), source };
+    let unplayable = |problem: String| LoadError::Unplayable { path: path.into(), problem };
+
+    // The black level's light, by the same independent check on all-zero frames.
+    let zeros: Vec<Vec<u8>> = m.projectors.iter().map(|p| vec![0u8; p.frame_len() as usize]).collect();
+    let zero_frames: Vec<XrgbFrame<'_>> = m
+        .projectors
+        .iter()
+        .zip(&zeros)
+        .map(|(p, z)| XrgbFrame { width: p.width, height: p.height, xrgb: z })
+        .collect();
+    let black_lux = max_irradiance(&m.light, &bundle.certificate, &zero_frames)
+        .map_err(|e| unplayable(format!("black level: {e}")))?
+        .lux;
+    drop(zeros);
+
+    let responses = m
+        .light
+        .projectors
+        .iter()
+        .map(|p| {
+            let mut rgb = [[0f32; 256]; 3];
+            for (c, curve) in p.response.iter().enumerate() {
+                // Running maximum: a measured curve that dips is treated as never dimmer,
+                // the same conservative reading the bound check uses.
+                let mut top = 0f32;
+                for (v, out) in rgb[c].iter_mut().enumerate() {
+                    top = top.max(curve.get(v).copied().unwrap_or(1.0));
+                    *out = top;
+                }
+            }
+            Response { rgb }
+        })
+        .collect();
+    let scenes: Vec<Scene> = m
+        .scenes
+        .iter()
+        .zip(&bundle.peaks)
+        .map(|(s, peak)| Scene {
+            id: s.id.clone(),
+            name: s.name.clone(),
+            kind: match s.kind {
+                restage_shared::bundle::SceneKind::Original => SceneKind::Original,
+                restage_shared::bundle::SceneKind::Restoration => SceneKind::Restoration,
+                restage_shared::bundle::SceneKind::Relit => SceneKind::Relit,
+            },
+            peak_lux: peak.lux,
+        })
+        .collect();
+    let p = &m.policy;
+    let policy_idle = match &p.idle {
+        PolicyIdle::ProjectorsOff => Look::Off,
+        PolicyIdle::Black => Look::Black,
+        PolicyIdle::Scene(id) => match m.scene(id) {
+            Some((i, _)) => Look::Scene(i),
+            None => return Err(unplayable(format!("idle scene {id:?} is not in the bundle"))),
+        },
+    };
+    // The operator may choose a darker idle than the policy's, never a brighter one.
+    let original = scenes.iter().position(|s| s.kind == SceneKind::Original);
+    let rank = |l: Look| match l {
+        Look::Off => 0,
+        Look::Black => 1,
+        Look::Scene(_) => 2,
+    };
+    let idle_look = match idle {
+        None => policy_idle,
+        Some(i) => {
+            let wanted = match i {
+                IdleMode::Off => Look::Off,
+                IdleMode::Black => Look::Black,
+                IdleMode::Original => original.map_or(Look::Black, Look::Scene),
+            };
+            if rank(wanted) <= rank(policy_idle) {
+                wanted
+            } else {
+                tracing::warn!(?wanted, policy = ?policy_idle, "config idle is brighter than the bundle's policy; policy kept");
+                policy_idle
+            }
+        }
+    };
+    let show = Show {
+        object_id: m.object.id.clone(),
+        version: m.version,
+        bundle_hash: hash.clone(),
+        projectors: m.projectors.iter().map(|p| (p.width, p.height)).collect(),
+        scenes,
+        black_lux,
+        responses,
+        policy: Policy {
+            max_showing_ms: u64::from(p.max_showing_s) * 1000,
+            cooldown_ms: u64::from(p.cooldown_s) * 1000,
+            daily_lux_hours: p.daily_budget_lxh,
+            annual_lux_hours: p.annual_budget_lxh,
+            warn_at: p.warn_at.clone(),
+        },
+        idle: idle_look,
+        expires_unix_ms: m.expires_unix_s.map(|s| s.saturating_mul(1000)),
+    };
+
+    // Everything verified: record the version, make it the active bundle.
+    ledger.accept_version(&show.object_id, show.version, &hash, now_unix_ms).map_err(LoadError::Ledger)?;
+    ledger
+        .set_active(&ActiveBundle {
+            object: show.object_id.clone(),
+            version: show.version,
+            bundle_hash: hash,
+            path: path.display().to_string(),
+            loaded_ms: now_unix_ms,
+            budgets: Budgets {
+                daily_lux_hours: show.policy.daily_lux_hours,
+                annual_lux_hours: show.policy.annual_lux_hours,
+                warn_at: show.policy.warn_at.clone(),
+            },
+        })
+        .map_err(LoadError::Ledger)?;
+
+    let mut pinned = Vec::new();
+    if let Look::Scene(i) = show.idle {
+        pinned.push(i);
+    }
+    if let Some(&first) = show.cycle().first() {
+        pinned.push(first);
+    }
+    let mut store = FrameStore { bundle, cache: HashMap::new(), pinned: pinned.clone() };
+    for s in pinned {
+        let frames = store.scene(s).map_err(refused)?;
+        store.cache.insert(s, frames);
+    }
+    tracing::info!(
+        object = %show.object_id,
+        version = show.version,
+        scenes = show.scenes.len(),
+        projectors = show.projectors.len(),
+        "bundle verified and loaded"
+    );
+    Ok(Loaded { show: Arc::new(show), store })
+}

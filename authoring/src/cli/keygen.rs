@@ -1,0 +1,27 @@
+//! `restage-author keygen --out NAME`: a new Ed25519 signing key, `NAME.pem` (PKCS#8,
+//! mode 0600) and `NAME.pub.pem` (SPKI, for the appliance's trust directory).
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use rand::RngCore;
+use restage_shared::keys::{KeyId, signing_key_from_seed, write_keypair};
+
+#[derive(Debug, clap::Args)]
+pub struct KeygenArgs {
+    /// Path and stem of the key files: NAME.pem and NAME.pub.pem (never overwritten).
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(args: &KeygenArgs) -> Result<()> {
+    let mut seed = [0u8; 32];
+    rand::rngs::OsRng.fill_bytes(&mut seed);
+    let key = signing_key_from_seed(seed);
+    seed.fill(0);
+    let (private, public) = write_keypair(&key, &args.out).context("writing the key pair")?;
+    println!("key id      {}", KeyId::of(&key.verifying_key()));
+    println!("private key {} (keep it secret; mode 0600)", private.display());
+    println!("public key  {} (copy into the appliance's trust directory)", public.display());
+    Ok(())
+}

@@ -1,0 +1,46 @@
+//! `restage-author verify BUNDLE --trust DIR`: the appliance's own verification (signature,
+//! validity, version, every section hash, every scene's light bound), run on the workstation.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use restage_shared::bundle::{Limits, VerifyOptions, verify_file};
+
+#[derive(Debug, clap::Args)]
+pub struct VerifyArgs {
+    pub bundle: PathBuf,
+    /// Directory of trusted public keys (*.pem, SPKI).
+    #[arg(long)]
+    pub trust: PathBuf,
+    /// Check validity at this Unix time instead of now.
+    #[arg(long)]
+    pub now: Option<i64>,
+    /// Refuse versions below this one (as an appliance that accepted it would).
+    #[arg(long)]
+    pub accepted_version: Option<u64>,
+}
+
+pub fn run(args: &VerifyArgs) -> Result<()> {
+    let now = match args.now {
+        Some(t) => t,
+        None => super::now_unix_s()?,
+    };
+    let accepted = args.accepted_version;
+    let last = move |_: &str| accepted;
+    let opts = VerifyOptions { now_unix_s: now, last_accepted: &last, limits: Limits::default() };
+    let v = verify_file(&args.bundle, &args.trust, &opts)?;
+    let m = &v.manifest;
+    println!(
+        "OK {}: object {} version {}, {} scenes on {} projectors, signed by key {}",
+        args.bundle.display(),
+        m.object.id,
+        m.version,
+        m.scenes.len(),
+        m.projectors.len(),
+        v.key_id
+    );
+    for (s, p) in m.scenes.iter().zip(&v.peaks) {
+        println!("  {:<16} peak {:.2} lx (allowed {:.2} lx)", s.id, p.lux, m.light.allowed_lux());
+    }
+    Ok(())
+}
