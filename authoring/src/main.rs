@@ -14,6 +14,18 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Calibrate the stage: capture set in, stage model out, with a PNG report and a PLY model.
+    Calibrate(cli::calibrate::CalibrateArgs),
+    /// Decode structured light to correspondence maps (our captures or OpenCV's order).
+    Decode(cli::decode::DecodeArgs),
+    /// Compare a step's output with the virtual stage's ground truth (table and JSON).
+    Eval(cli::eval::EvalArgs),
+    /// Simulate a built-in scene on the virtual stage and write its capture set.
+    Simulate(cli::simulate::Args),
+    /// Run the whole chain on the virtual stage (the README's first command).
+    Demo(cli::demo::Args),
+    /// Render what the camera sees when the projectors show given frames (true physics).
+    Render(cli::render::Args),
     /// Classify a photo's pixels into the picked paint colours (paper §4.1).
     Classify(cli::classify::ClassifyArgs),
     /// Restore a classified label map by contour energy minimisation (paper §4.2-4.4).
@@ -39,6 +51,12 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Calibrate(args) => cli::calibrate::run(args),
+        Command::Decode(args) => cli::decode::run(args),
+        Command::Eval(args) => cli::eval::run(args),
+        Command::Simulate(args) => cli::simulate::run(&args),
+        Command::Demo(args) => cli::demo::run(&args),
+        Command::Render(args) => cli::render::run(&args),
         Command::Classify(args) => cli::classify::run(&args),
         Command::Restore(a) => cli::restore::run(&a),
         Command::Compensate(a) => cli::compensate::run(a),

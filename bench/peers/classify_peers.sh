@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Side-by-side classification table: ours and our baselines vs OpenCV (cv2.kmeans,
 # cv2.pyrMeanShiftFiltering) on every built-in scene, plus speed on the 10 MP benchmark photo.
-# Installs a pinned opencv-python-headless into bench/peers/.venv on first use.
+# Installs the pinned OpenCV of bench/peers/requirements.txt into bench/peers/.venv on first use.
 # Usage: bash bench/peers/classify_peers.sh [OUT_DIR]   (default out/classify-peers)
 set -euo pipefail
 cd "$(dirname "$0")/../.."

@@ -3,8 +3,11 @@
 
 pub mod classify;
 pub mod compensate;
+pub mod geometry;
 
 use serde::Serialize;
+
+pub mod transport;
 
 /// One measured figure, with the target it is held to (if any).
 #[derive(Clone, Debug, Serialize)]
