@@ -4,12 +4,16 @@
 //! click them. Baselines' clusters are unordered; each is matched to the classes by the
 //! one-to-one assignment that maximises its accuracy (an oracle in their favour).
 
+use std::path::Path;
 use std::time::Instant;
+
+use serde::Serialize;
 
 use crate::classify::baseline::{BaselineSpace, kmeans_baseline};
 use crate::classify::{ClassifyError, ClassifyOptions, LabelMap, MASKED, classify, picks_from_labels};
 use crate::eval::Metric;
 use crate::imgio::LinearImage;
+use crate::stage_sim::{GROUND_TRUTH_DIR, SceneConfig, SceneName, StageSimError, VirtualStage};
 
 /// Picks per colour the simulated conservator clicks.
 pub const PICKS_PER_CLASS: usize = 6;
@@ -38,6 +42,8 @@ pub struct PhotoEval {
     pub baselines: Vec<MethodScore>,
     /// Our labels, in truth class indices (255 off the object).
     pub ours_labels: LabelMap,
+    /// The truth relabelled densely over the classes present.
+    pub dense_truth: LabelMap,
 }
 
 /// Confusion counts `[truth][predicted]` over object pixels (truth != MASKED).
@@ -175,6 +181,7 @@ pub fn evaluate_photo(
         ours: ours_score,
         baselines,
         ours_labels,
+        dense_truth: dense,
     })
 }
 
@@ -210,6 +217,86 @@ pub fn metrics(e: &PhotoEval) -> Vec<Metric> {
     }
     out.push(Metric::info(step, &format!("{} time, ours", e.label), e.ours.seconds, "s"));
     out
+}
+
+/// A photo with its truth, ready for [`evaluate_photo`].
+#[derive(Clone, Debug)]
+pub struct EvalCase {
+    pub label: String,
+    pub photo: LinearImage,
+    /// Deteriorated labels, camera space.
+    pub truth: LabelMap,
+    pub names: Vec<String>,
+    /// Each class's sRGB colour in the stage's palette (used as the display colour).
+    pub display: Vec<Option<[u8; 3]>>,
+}
+
+/// Renders a built-in scene's diffusely lit photo in memory (as the capture's `photo.png`:
+/// all projectors black, room light on, camera noise) with its deteriorated labels.
+pub fn scene_case(scene: SceneName, camera: [u32; 2], seed: u64) -> Result<EvalCase, StageSimError> {
+    let cfg = SceneConfig { scene, seed, camera, projector: [1400, 1050], projectors: 3, deteriorate: true };
+    let stage = VirtualStage::new(&cfg)?;
+    let photo = stage.capture(&stage.black_frames(), true, 0)?;
+    let labels: Vec<u8> = stage.pixels().iter().map(|p| p.label).collect();
+    let truth = LabelMap::from_vec(camera[0], camera[1], labels)
+        .map_err(|e| StageSimError::Truth { path: "(in memory)".into(), problem: e.to_string() })?;
+    let pal = stage.palette();
+    Ok(EvalCase {
+        label: scene.name().into(),
+        photo,
+        truth,
+        names: pal.classes.iter().map(|c| c.name.clone()).collect(),
+        display: pal.classes.iter().map(|c| Some(c.srgb)).collect(),
+    })
+}
+
+/// Reads a capture set's photo and its ground truth (`labels_deteriorated.png`, `palette.json`).
+pub fn capture_case(capture_dir: &Path) -> Result<EvalCase, ClassifyError> {
+    let gt = capture_dir.join(GROUND_TRUTH_DIR);
+    let photo = LinearImage::load(&capture_dir.join("photo.png"))?;
+    let truth = LabelMap::load(&gt.join("labels_deteriorated.png"))?;
+    let pal_path = gt.join("palette.json");
+    let text = std::fs::read_to_string(&pal_path)
+        .map_err(|source| ClassifyError::Read { path: pal_path.clone(), source })?;
+    let pal: crate::stage_sim::paint::Palette =
+        serde_json::from_str(&text).map_err(|source| ClassifyError::Json { path: pal_path, source })?;
+    let label = capture_dir.file_name().map_or("capture".into(), |n| n.to_string_lossy().into_owned());
+    Ok(EvalCase {
+        label,
+        photo,
+        truth,
+        names: pal.classes.iter().map(|c| c.name.clone()).collect(),
+        display: pal.classes.iter().map(|c| Some(c.srgb)).collect(),
+    })
+}
+
+/// Accuracies for `bench/peers/classify_peers.py`.
+#[derive(Clone, Debug, Serialize)]
+struct PeerJson {
+    ours: f64,
+    #[serde(rename = "k-means++ RGB")]
+    rgb: f64,
+    #[serde(rename = "k-means++ Lab")]
+    lab: f64,
+}
+
+/// Writes what people and the peer script look at: `photo.png` (16-bit linear, as given),
+/// `truth.png` (dense class indices over the classes present, 255 off the object),
+/// `ours_preview.png` (false colour) and `metrics.json`.
+pub fn save_case(dir: &Path, case: &EvalCase, e: &PhotoEval) -> Result<(), ClassifyError> {
+    std::fs::create_dir_all(dir).map_err(|source| ClassifyError::Write { path: dir.into(), source })?;
+    case.photo.save_linear16(&dir.join("photo.png"))?;
+    e.dense_truth.save(&dir.join("truth.png"))?;
+    let mut preview = image::RgbImage::new(case.truth.width, case.truth.height);
+    for (p, &l) in preview.pixels_mut().zip(&e.ours_labels.data) {
+        p.0 = case.display.get(l as usize).copied().flatten().unwrap_or([0, 0, 0]);
+    }
+    let path = dir.join("ours_preview.png");
+    preview.save(&path).map_err(|source| crate::imgio::ImageError::Write { path, source })?;
+    let j = PeerJson { ours: e.ours.accuracy, rgb: e.baselines[0].accuracy, lab: e.baselines[1].accuracy };
+    let path = dir.join("metrics.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&j).expect("serialises"))
+        .map_err(|source| ClassifyError::Write { path, source })
 }
 
 #[cfg(test)]
