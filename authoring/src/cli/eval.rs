@@ -44,6 +44,16 @@ pub enum EvalStep {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Light transport, responses, vignetting, black levels, lux and gain (paper §5.2) against
+    /// the capture's ground-truth stage model.
+    Transport {
+        /// Capture directory of the virtual stage (its ground-truth/stage/ is the reference).
+        #[arg(long)]
+        capture: PathBuf,
+        /// Stage directory written by `calibrate` with lux readings.
+        #[arg(long)]
+        stage: PathBuf,
+    },
 }
 
 pub fn run(args: EvalArgs) -> Result<()> {
@@ -57,6 +67,13 @@ pub fn run(args: EvalArgs) -> Result<()> {
         }
         EvalStep::Classify { capture, camera, seed, out } => {
             eval_classify(capture, camera, *seed, out.as_deref())?
+        }
+        EvalStep::Transport { capture, stage } => {
+            let truth_dir = capture.join("ground-truth").join("stage");
+            let truth = StageModel::load(&truth_dir)
+                .with_context(|| format!("reading the ground truth in {}", truth_dir.display()))?;
+            let est = StageModel::load(stage)?;
+            eval::transport::evaluate(&est, &truth)
         }
     };
     print!("{}", eval::table(&metrics));
