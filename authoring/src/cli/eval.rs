@@ -28,6 +28,16 @@ pub enum EvalStep {
         #[arg(long)]
         stage: PathBuf,
     },
+    /// Light transport, responses, vignetting, black levels, lux and gain (paper §5.2) against
+    /// the capture's ground-truth stage model.
+    Transport {
+        /// Capture directory of the virtual stage (its ground-truth/stage/ is the reference).
+        #[arg(long)]
+        capture: PathBuf,
+        /// Stage directory written by `calibrate` with lux readings.
+        #[arg(long)]
+        stage: PathBuf,
+    },
 }
 
 pub fn run(args: EvalArgs) -> Result<()> {
@@ -38,6 +48,13 @@ pub fn run(args: EvalArgs) -> Result<()> {
                 .with_context(|| format!("reading the ground truth in {}", truth_dir.display()))?;
             let est = StageModel::load(stage)?;
             eval::geometry::evaluate(&est, &truth)
+        }
+        EvalStep::Transport { capture, stage } => {
+            let truth_dir = capture.join("ground-truth").join("stage");
+            let truth = StageModel::load(&truth_dir)
+                .with_context(|| format!("reading the ground truth in {}", truth_dir.display()))?;
+            let est = StageModel::load(stage)?;
+            eval::transport::evaluate(&est, &truth)
         }
     };
     print!("{}", eval::table(&metrics));

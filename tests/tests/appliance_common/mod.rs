@@ -17,7 +17,12 @@ use restage_shared::keys::{public_key_to_pem, signing_key_from_seed};
 use restage_shared::light::{LightCertificate, LightModel, XrgbFrame, max_irradiance};
 use restage_shared::policy::{ExposurePolicy, IdleMode};
 
-pub const BIN: &str = env!("CARGO_BIN_EXE_restage-appliance-under-test");
+/// The process under test (integration tests get its path from cargo; the figures example
+/// finds it beside its own directory).
+pub const BIN: &str = match option_env!("CARGO_BIN_EXE_restage-appliance-under-test") {
+    Some(p) => p,
+    None => "restage-appliance-under-test",
+};
 pub const OBJECT: &str = "test-jar-1";
 
 /// A stage in a temporary folder.
