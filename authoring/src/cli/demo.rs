@@ -59,7 +59,7 @@ pub fn run(args: &Args) -> Result<()> {
     let stage_dir = args.out.join("stage");
     let known =
         restage_authoring::calibrate::selfcal::KnownLength::Baseline { projector: 0, mm: baseline_mm };
-    let report = crate::cli::calibrate::calibrate(&capture_dir, &stage_dir, known)?;
+    let report = crate::cli::calibrate::calibrate(&capture_dir, &stage_dir, known, None)?;
     tracing::info!(
         "step 2 (calibrate) done at {:.1} s: {} points, reprojection RMS {:.3} px, {}",
         start.elapsed().as_secs_f64(),
