@@ -68,6 +68,18 @@ pub fn run(args: &Args) -> Result<()> {
         stage_dir.join("report.png").display()
     );
 
+    // Step 3: colour classification, with picks the virtual stage derives from its ground truth.
+    let classify_dir = args.out.join("classify");
+    let (picks, mask) = super::classify::picks_from_ground_truth(&capture_dir, &classify_dir, args.seed)?;
+    let summary = super::classify::classify_files(
+        &capture_dir.join(&manifest.photo),
+        &picks,
+        Some(&mask),
+        &classify_dir,
+        1,
+    )?;
+    tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());
+
     tracing::info!(
         "demo finished in {:.1} s; results in {}",
         start.elapsed().as_secs_f64(),
