@@ -1,13 +1,17 @@
 //! `restage-author calibrate CAPTURE_DIR --out STAGE_DIR`: the stage model from a capture
-//! set, as a clear sequence of steps (decode, self-calibrate and triangulate, then save with
-//! a PNG report and a PLY model).
+//! set, as a clear sequence of steps (decode, self-calibrate and triangulate, then light
+//! transport, responses, vignetting, black levels, lux and gain when a lux reading is given,
+//! then save with PNG reports and a PLY model).
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
 use restage_authoring::calibrate::geometry::{self, GeometryOptions, GeometryReport};
+use restage_authoring::calibrate::lux::LuxReadings;
+use restage_authoring::calibrate::photometric;
 use restage_authoring::calibrate::selfcal::KnownLength;
+use restage_authoring::calibrate::transport::SnapParams;
 use restage_authoring::calibrate::{ply, report};
 use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::imgio::LinearImage;
@@ -28,10 +32,24 @@ pub struct CalibrateArgs {
     /// Which projector --known-distance-mm refers to.
     #[arg(long, default_value_t = 0)]
     pub known_projector: usize,
+    /// Lux-meter readings at full white, one per projector (`0=420,1=395,2=410`), the meter at
+    /// the object's centre facing the projector. Enables the photometric steps (paper §5.2).
+    #[arg(long, conflicts_with = "lux_file")]
+    pub lux_white: Option<String>,
+    /// The same readings as a TOML file, optionally with the reference pixel, the meter's
+    /// orientation and an ambient reading (see `calibrate::lux`).
+    #[arg(long)]
+    pub lux_file: Option<PathBuf>,
 }
 
-/// Runs calibration; the demo calls this too.
-pub fn calibrate(capture: &Path, out: &Path, known: KnownLength) -> Result<GeometryReport> {
+/// Runs calibration; the demo calls this too. Without lux readings only the geometry is
+/// calibrated.
+pub fn calibrate(
+    capture: &Path,
+    out: &Path,
+    known: KnownLength,
+    lux: Option<&LuxReadings>,
+) -> Result<GeometryReport> {
     let started = std::time::Instant::now();
     // Step 1: the capture set.
     let manifest = CaptureManifest::load(capture)?;
@@ -59,11 +77,52 @@ pub fn calibrate(capture: &Path, out: &Path, known: KnownLength) -> Result<Geome
     // Step 3: self-calibrate all projectors jointly, scale, triangulate.
     let spinner = indicatif::ProgressBar::new_spinner().with_message("self-calibrating and triangulating");
     spinner.enable_steady_tick(std::time::Duration::from_millis(200));
-    let (model, report, dense, _) = geometry::solve_geometry(&manifest, &decodes, &options)
+    let (mut model, report, dense, _) = geometry::solve_geometry(&manifest, &decodes, &options)
         .with_context(|| format!("calibrating {}", capture.display()))?;
     spinner.finish_and_clear();
 
-    // Step 4: save the model, the report and the PLY.
+    // Step 4: light transport (refining the correspondences), responses, vignetting, black
+    // levels, lux and gain.
+    if let Some(lux) = lux {
+        let bar = crate::cli::progress(1, "photometric");
+        let show = |stage: &str, done: usize, total: usize| {
+            bar.set_message(stage.to_string());
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        };
+        let photo = photometric::calibrate_photometry(
+            capture,
+            &manifest,
+            &mut model,
+            lux,
+            &SnapParams::default(),
+            &show,
+        )
+        .with_context(|| format!("photometric calibration of {}", capture.display()))?;
+        bar.finish_and_clear();
+        let sizes: Vec<(u32, u32)> = manifest.projectors.iter().map(|p| (p.width, p.height)).collect();
+        photo
+            .save(out, &sizes)
+            .with_context(|| format!("writing the photometric report in {}", out.display()))?;
+        for (k, t) in photo.transport.iter().enumerate() {
+            tracing::info!(
+                "projector {k}: {} of {} dots snapped, transport covers {:.1} % of its lit pixels, \
+                 lux_at_1m {:.1}, leakage {:.2} %",
+                t.dots,
+                t.predicted,
+                100.0 * t.coverage,
+                model.projectors[k].lux_at_1m,
+                100.0 * photo.radiometry[k].max_leakage()
+            );
+        }
+    } else {
+        tracing::warn!(
+            "no --lux-white or --lux-file: only the geometry is calibrated (no light transport, \
+             responses or gain)"
+        );
+    }
+
+    // Step 5: save the model, the report and the PLY.
     save(&model, out)?;
     let sizes: Vec<(u32, u32)> = manifest.projectors.iter().map(|p| (p.width, p.height)).collect();
     let png = out.join("report.png");
@@ -126,5 +185,10 @@ fn save(model: &StageModel, out: &Path) -> Result<()> {
 
 pub fn run(args: CalibrateArgs) -> Result<()> {
     let known = KnownLength::Baseline { projector: args.known_projector, mm: args.known_distance_mm };
-    calibrate(&args.capture, &args.out, known).map(|_| ())
+    let lux = match (&args.lux_white, &args.lux_file) {
+        (Some(text), _) => Some(LuxReadings::parse(text)?),
+        (None, Some(path)) => Some(LuxReadings::load(path)?),
+        (None, None) => None,
+    };
+    calibrate(&args.capture, &args.out, known, lux.as_ref()).map(|_| ())
 }

@@ -45,7 +45,7 @@ pub fn run_chain(
     let truth_dir = capture_dir.join("ground-truth").join("stage");
     let model = StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
     log(format!(
-        "step 2 calibrate: SUBSTITUTE — the true stage model ({}) stands in for calibration (its radiometry step is not wired into the demo yet)",
+        "compensation model: SUBSTITUTE — the geometry calibration above has no radiometry (gain, ambient) yet, so the TRUE stage model ({}) is used for compensation",
         truth_dir.display()
     ));
 

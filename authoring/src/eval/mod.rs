@@ -1,6 +1,7 @@
 //! Evaluation against the virtual stage's ground truth: every step reports figures as rows
 //! of one table, printed for people and as JSON for machines. One submodule per step.
 
+pub mod classify;
 pub mod compensate;
 pub mod geometry;
 
