@@ -26,6 +26,7 @@ pub mod io;
 mod raster;
 mod region;
 mod render;
+pub mod synthetic;
 
 use thiserror::Error;
 
