@@ -1,13 +1,18 @@
 //! restage-authoring: the conservator's offline tool, one module per step of the data flow
 //! (see ARCHITECTURE.md). Each step is a pure function of files in and files out.
 
+pub mod acquire;
 pub mod calibrate;
 pub mod capture_set;
 pub mod classify;
 pub mod color;
 pub mod compensate;
+pub mod contact_sheet;
 pub mod eval;
 pub mod export;
+pub mod hw;
 pub mod imgio;
+pub mod patterns;
 pub mod restore;
 pub mod stage_model;
+pub mod stage_sim;

@@ -14,6 +14,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Simulate a built-in scene on the virtual stage and write its capture set.
+    Simulate(cli::simulate::Args),
+    /// Run the whole chain on the virtual stage (the README's first command).
+    Demo(cli::demo::Args),
+    /// Render what the camera sees when the projectors show given frames (true physics).
+    Render(cli::render::Args),
     /// Classify a photo's pixels into the picked paint colours (paper §4.1).
     Classify(cli::classify::ClassifyArgs),
     /// Restore a classified label map by contour energy minimisation (paper §4.2-4.4).
@@ -39,6 +45,9 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Simulate(args) => cli::simulate::run(&args),
+        Command::Demo(args) => cli::demo::run(&args),
+        Command::Render(args) => cli::render::run(&args),
         Command::Classify(args) => cli::classify::run(&args),
         Command::Restore(a) => cli::restore::run(&a),
         Command::Compensate(a) => cli::compensate::run(a),

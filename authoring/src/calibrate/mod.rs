@@ -2,5 +2,6 @@
 //! transport, projector responses, per-pixel gain and ambient, lux scale.
 
 pub mod lux;
+pub mod photometric;
 pub mod radiometry;
 pub mod transport;

@@ -4,9 +4,12 @@
 pub mod bundle;
 pub mod classify;
 pub mod compensate;
+pub mod demo;
 pub mod inspect;
 pub mod keygen;
+pub mod render;
 pub mod restore;
+pub mod simulate;
 pub mod verify;
 
 /// The one time taken at the start of a command (Unix seconds).

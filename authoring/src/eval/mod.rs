@@ -5,6 +5,8 @@ pub mod compensate;
 
 use serde::Serialize;
 
+pub mod transport;
+
 /// One measured figure, with the target it is held to (if any).
 #[derive(Clone, Debug, Serialize)]
 pub struct Metric {

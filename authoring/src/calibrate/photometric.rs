@@ -1,0 +1,623 @@
+//! The photometric half of calibration (paper §5.2), run after the geometry step: light
+//! transport from the dot grids, responses from the ramps, then vignetting, black levels,
+//! lux scale, per-pixel gain and ambient — all written into the [`StageModel`].
+//!
+//! Loads the capture's images (the only I/O here), one at a time per worker so memory stays at
+//! a few images whatever the number of dots or levels.
+//!
+//! Two things a camera cannot see directly are modelled: (1) vignetting, taken as a radial
+//! falloff `1 - a r^2` about each projector's principal point (normalised at the image centre)
+//! with `a` fitted from where projectors overlap (albedo cancels in their ratio); with one
+//! projector it stays uniform; (2) black levels and stray room light, fitted together from the
+//! all-black image as `black(p) = sum_k b_k lit_k(p) + s gain(p)` (acquisition keeps every
+//! other projector black and the room light off).
+
+use std::path::Path;
+
+use rayon::prelude::*;
+use thiserror::Error;
+use tracing::{info, warn};
+
+use crate::calibrate::lux::{LuxError, LuxFit, LuxReadings, apply_lux};
+use crate::calibrate::radiometry::{
+    ProjectorRadiometry, RadiometryError, ResponseBuilder, full_irradiance, gain_map,
+};
+use crate::calibrate::transport::{
+    self, Predictor, RefineStats, SnapContext, SnapParams, TransportError, TransportResult, noise_sigma,
+};
+use crate::capture_set::{CaptureManifest, Pattern, ProjectorCapture};
+use crate::imgio::{ImageError, LinearImage};
+use crate::stage_model::StageModel;
+
+#[derive(Debug, Error)]
+pub enum PhotometricError {
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    #[error(transparent)]
+    Transport(#[from] TransportError),
+    #[error(transparent)]
+    Radiometry(#[from] RadiometryError),
+    #[error(transparent)]
+    Lux(#[from] LuxError),
+    #[error("projector {projector}: the capture has no {what} image")]
+    Missing { projector: usize, what: String },
+    #[error("projector {projector}: dot images use spacings {spacings:?} (expected one spacing)")]
+    MixedSpacing { projector: usize, spacings: Vec<u32> },
+    #[error("the stage model has {model} projectors but the capture has {capture}")]
+    ProjectorCount { model: usize, capture: usize },
+}
+
+/// What the photometric steps report (warnings name projectors and images).
+#[derive(Clone, Debug, Default)]
+pub struct PhotometricReport {
+    pub transport: Vec<TransportSummary>,
+    pub radiometry: Vec<ProjectorRadiometry>,
+    /// Fitted vignetting coefficient `a` per projector (None: not observable, left uniform).
+    pub vignetting: Vec<Option<f64>>,
+    /// Stray room light per channel, in lux.
+    pub stray_lux: [f32; 3],
+    pub lux: Vec<LuxFit>,
+    pub warnings: Vec<String>,
+}
+
+/// Per projector: what transport found.
+#[derive(Clone, Debug, Default)]
+pub struct TransportSummary {
+    pub spacing: u32,
+    pub dots: usize,
+    pub predicted: usize,
+    pub off_object: usize,
+    pub refine: RefineStats,
+    /// Per projector pixel footprint energy (camera pixels' worth), NaN where unmeasured.
+    pub footprint: Vec<f32>,
+    /// Share of the projector's lit camera pixels that its transport covers.
+    pub coverage: f64,
+}
+
+/// Hooks for progress: `(stage name, done, total)`.
+pub type Progress<'a> = &'a (dyn Fn(&str, usize, usize) + Sync);
+
+fn load(dir: &Path, file: &Path, w: u32, h: u32) -> Result<LinearImage, ImageError> {
+    LinearImage::load_sized(&dir.join(file), w, h)
+}
+
+fn need<'a>(
+    p: &'a ProjectorCapture,
+    k: usize,
+    pattern: &Pattern,
+    what: &str,
+) -> Result<&'a Path, PhotometricError> {
+    p.find(pattern).ok_or(PhotometricError::Missing { projector: k, what: what.into() })
+}
+
+/// Measures one projector's transport from its dot images and refines `correspondence`.
+pub fn measure_transport(
+    dir: &Path,
+    k: usize,
+    capture: &ProjectorCapture,
+    (cam_w, cam_h): (u32, u32),
+    correspondence: &[[f32; 2]],
+    params: &SnapParams,
+    progress: Progress,
+) -> Result<(TransportResult, Vec<[f32; 2]>, RefineStats), PhotometricError> {
+    let white_file = need(capture, k, &Pattern::White, "white")?;
+    let black = load(dir, need(capture, k, &Pattern::Black, "black")?, cam_w, cam_h)?;
+    let white = load(dir, white_file, cam_w, cam_h)?;
+    transport::check_reference(k, &black, &white, &white_file.display().to_string(), cam_w, cam_h)?;
+    if !correspondence.iter().any(|c| c[0].is_finite()) {
+        return Err(TransportError::NoCorrespondence { projector: k }.into());
+    }
+    let dots: Vec<(u32, u32, u32, &Path)> = capture
+        .shots
+        .iter()
+        .filter_map(|s| match s.pattern {
+            Pattern::Dots { spacing, dx, dy } => Some((spacing, dx, dy, s.file.as_path())),
+            _ => None,
+        })
+        .collect();
+    let mut spacings: Vec<u32> = dots.iter().map(|d| d.0).collect();
+    spacings.sort_unstable();
+    spacings.dedup();
+    let spacing = match spacings.as_slice() {
+        [s] => *s,
+        [] => return Err(PhotometricError::Missing { projector: k, what: "dot-grid".into() }),
+        _ => return Err(PhotometricError::MixedSpacing { projector: k, spacings }),
+    };
+    // The black image's spread (channel sums) is the camera noise: the scene is dark.
+    let zero = SnapContext {
+        width: cam_w,
+        height: cam_h,
+        black: vec![0.0; black.data.len()],
+        lit: vec![],
+        lit_min: 0.0,
+    };
+    let sigma = noise_sigma(&black, &zero);
+    let ctx = SnapContext::new(&black, &white, sigma, params);
+    drop((black, white));
+    let pred = Predictor::new(correspondence, cam_w, capture.width, capture.height);
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let images = dots
+        .par_iter()
+        .map(|&(_, dx, dy, file)| {
+            let img = load(dir, file, cam_w, cam_h)?;
+            let r = transport::snap_dot_image(&img, &ctx, &pred, spacing, (dx, dy), params);
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress(&format!("projector {k}: dots"), n, dots.len());
+            Ok((file.display().to_string(), r))
+        })
+        .collect::<Result<Vec<_>, ImageError>>()?;
+    let result = transport::assemble(k, capture.width, capture.height, spacing, images)?;
+    let (refined, stats) = transport::refine_correspondences(
+        correspondence,
+        cam_w,
+        cam_h,
+        &result.dots,
+        params.max_refine_shift,
+    );
+    Ok((result, refined, stats))
+}
+
+/// Measures one projector's responses from its ramps; also returns its black image.
+pub fn measure_radiometry(
+    dir: &Path,
+    k: usize,
+    capture: &ProjectorCapture,
+    (cam_w, cam_h): (u32, u32),
+    progress: Progress,
+) -> Result<(ProjectorRadiometry, LinearImage), PhotometricError> {
+    let black = load(dir, need(capture, k, &Pattern::Black, "black")?, cam_w, cam_h)?;
+    let white_file = need(capture, k, &Pattern::White, "white")?;
+    // Each channel's full level: its 255 ramp, else the white image.
+    let full_files: Vec<&Path> = (0..3u8)
+        .map(|channel| capture.find(&Pattern::Ramp { channel, level: 255 }).unwrap_or(white_file))
+        .collect();
+    let fulls: Vec<LinearImage> =
+        full_files.iter().map(|f| load(dir, f, cam_w, cam_h)).collect::<Result<_, _>>()?;
+    let names: Vec<String> = full_files.iter().map(|f| f.display().to_string()).collect();
+    let zero = SnapContext {
+        width: cam_w,
+        height: cam_h,
+        black: vec![0.0; black.data.len()],
+        lit: vec![],
+        lit_min: 0.0,
+    };
+    let min_lit = (10.0 * noise_sigma(&black, &zero) / 3.0f32.sqrt()).max(0.01);
+    let mut builder = ResponseBuilder::new(
+        k,
+        &black,
+        [(&fulls[0], names[0].as_str()), (&fulls[1], names[1].as_str()), (&fulls[2], names[2].as_str())],
+        min_lit,
+    )?;
+    drop(fulls);
+    let ramps: Vec<(u8, u8, &Path)> = capture
+        .shots
+        .iter()
+        .filter_map(|s| match s.pattern {
+            Pattern::Ramp { channel, level } if channel < 3 && level != 0 => {
+                Some((channel, level, s.file.as_path()))
+            }
+            _ => None,
+        })
+        .collect();
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let samples = ramps
+        .par_iter()
+        .map(|&(channel, level, file)| {
+            let img = load(dir, file, cam_w, cam_h)?;
+            let s = builder.measure(channel, level, &img, &file.display().to_string())?;
+            let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress(&format!("projector {k}: ramps"), n, ramps.len());
+            Ok(s)
+        })
+        .collect::<Result<Vec<_>, PhotometricError>>()?;
+    for s in samples {
+        builder.insert(s)?;
+    }
+    Ok((builder.finish()?, black))
+}
+
+/// Runs every photometric step on `model` (whose geometry and correspondences are calibrated):
+/// transport (refining the correspondences), responses, vignetting, black levels and stray
+/// light, lux, gain, ambient.
+pub fn calibrate_photometry(
+    dir: &Path,
+    manifest: &CaptureManifest,
+    model: &mut StageModel,
+    lux: &LuxReadings,
+    params: &SnapParams,
+    progress: Progress,
+) -> Result<PhotometricReport, PhotometricError> {
+    let n = model.projectors.len();
+    if manifest.projectors.len() != n {
+        return Err(PhotometricError::ProjectorCount { model: n, capture: manifest.projectors.len() });
+    }
+    let size = (model.camera.width, model.camera.height);
+    let mut report = PhotometricReport::default();
+    let mut blacks = Vec::new();
+    let mut lits = Vec::new();
+    for (k, cap) in manifest.projectors.iter().enumerate() {
+        let (res, refined, stats) =
+            measure_transport(dir, k, cap, size, &model.correspondences[k], params, progress)?;
+        info!(
+            "projector {k}: {} dots snapped of {} predicted ({} off the object); {} camera pixels refined, \
+             median shift {:.3} px",
+            res.dots.len(),
+            res.images.iter().map(|(_, r)| r.predicted()).sum::<usize>(),
+            res.images.iter().map(|(_, r)| r.off_object).sum::<usize>(),
+            stats.refined,
+            stats.median_shift
+        );
+        report.warnings.extend(res.warnings.iter().cloned());
+        model.correspondences[k] = refined;
+        let (rad, black) = measure_radiometry(dir, k, cap, size, progress)?;
+        report.warnings.extend(rad.warnings.iter().cloned());
+        if rad.max_leakage() > 0.02 {
+            report.warnings.push(format!(
+                "projector {k}: colour leakage up to {:.1} % between channels (the model assumes none)",
+                100.0 * rad.max_leakage()
+            ));
+        }
+        model.projectors[k].response = rad.response.clone();
+        let lit: Vec<bool> = rad.lit.iter().map(|l| l[0] + l[1] + l[2] > 0.03).collect();
+        let covered = transport::coverage_mask(&res.transport, lit.len());
+        let lit_count = lit.iter().filter(|&&l| l).count().max(1);
+        let coverage = lit.iter().zip(&covered).filter(|(l, c)| **l && **c).count() as f64 / lit_count as f64;
+        report.transport.push(TransportSummary {
+            spacing: res.images.first().map_or(0, |_| {
+                cap.shots
+                    .iter()
+                    .find_map(|s| {
+                        if let Pattern::Dots { spacing, .. } = s.pattern { Some(spacing) } else { None }
+                    })
+                    .unwrap_or(0)
+            }),
+            dots: res.dots.len(),
+            predicted: res.images.iter().map(|(_, r)| r.predicted()).sum(),
+            off_object: res.images.iter().map(|(_, r)| r.off_object).sum(),
+            refine: stats,
+            footprint: transport::footprint_energy(&res.transport, cap.width, cap.height),
+            coverage,
+        });
+        model.transport[k] = res.transport;
+        lits.push(rad.lit.clone());
+        report.radiometry.push(rad);
+        blacks.push(black);
+    }
+    // Vignetting from overlaps, then the black levels and stray light, then lux and gain.
+    report.vignetting = fit_vignetting(model, &lits, &mut report.warnings);
+    let lit_refs: Vec<&[[f32; 3]]> = lits.iter().map(|l| l.as_slice()).collect();
+    // `fit_vignetting` left relative intensities (projector 0 = 1) in `lux_at_1m`, so this gain
+    // shape is the true gain times projector 0's intensity.
+    let shape = gain_map(model, &lit_refs)?;
+    let mean_black = crate::calibrate::radiometry::ambient_map(&blacks.iter().collect::<Vec<_>>());
+    let (levels, stray) = fit_black(&mean_black, &lit_refs, &shape);
+    for (p, b) in model.projectors.iter_mut().zip(&levels) {
+        p.black = *b;
+    }
+    report.lux = apply_lux(model, lux)?;
+    model.gain = gain_map(model, &lit_refs)?;
+    let lux0 = model.projectors[0].lux_at_1m as f32;
+    report.stray_lux = stray.map(|s| s * lux0);
+    model.ambient = mean_black
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            let g = shape[i];
+            if !g[0].is_finite() {
+                return *m;
+            }
+            std::array::from_fn(|c| {
+                let mut v = stray[c] * g[c];
+                for (k, l) in lit_refs.iter().enumerate() {
+                    v += levels[k][c] * l[i][c];
+                }
+                v
+            })
+        })
+        .collect();
+    for w in &report.warnings {
+        warn!("{w}");
+    }
+    Ok(report)
+}
+
+/// Least-squares black levels per projector and channel plus a stray-light term, from the
+/// all-black image `black(p) = sum_k b_k lit_k(p) + s shape(p)` over pixels some projector lights.
+pub fn fit_black(black: &[[f32; 3]], lit: &[&[[f32; 3]]], shape: &[[f32; 3]]) -> (Vec<[f32; 3]>, [f32; 3]) {
+    let n = lit.len();
+    let m = n + 1;
+    let mut levels = vec![[0.0f32; 3]; n];
+    let mut stray = [0.0f32; 3];
+    for c in 0..3 {
+        let mut a = nalgebra::DMatrix::<f64>::zeros(m, m);
+        let mut b = nalgebra::DVector::<f64>::zeros(m);
+        let mut row = vec![0.0f64; m];
+        for i in 0..black.len() {
+            if !shape[i][c].is_finite() {
+                continue;
+            }
+            for k in 0..n {
+                row[k] = lit[k][i][c] as f64;
+            }
+            row[n] = shape[i][c] as f64;
+            for r in 0..m {
+                for q in 0..m {
+                    a[(r, q)] += row[r] * row[q];
+                }
+                b[r] += row[r] * black[i][c] as f64;
+            }
+        }
+        // A tiny ridge keeps the solve defined when a column is empty.
+        let scale = (0..m).map(|r| a[(r, r)]).fold(0.0, f64::max).max(1e-30);
+        for r in 0..m {
+            a[(r, r)] += 1e-9 * scale;
+        }
+        if let Some(x) = a.lu().solve(&b) {
+            for k in 0..n {
+                levels[k][c] = x[k].max(0.0) as f32;
+            }
+            stray[c] = x[n].max(0.0) as f32;
+        }
+    }
+    (levels, stray)
+}
+
+/// Fits each projector's radial vignetting coefficient from the ratios of `lit` where two
+/// projectors light the same pixel, and writes the maps into `model`, with the intensities
+/// relative to projector 0 in `lux_at_1m`. Returns the coefficients.
+pub fn fit_vignetting(
+    model: &mut StageModel,
+    lits: &[Vec<[f32; 3]>],
+    warnings: &mut Vec<String>,
+) -> Vec<Option<f64>> {
+    let n = model.projectors.len();
+    for p in &mut model.projectors {
+        p.vignetting = vec![];
+        p.lux_at_1m = 1.0;
+    }
+    if n < 2 {
+        warnings.push(
+            "one projector: vignetting cannot be separated from albedo and is taken as uniform (the gain \
+             absorbs it)"
+                .into(),
+        );
+        return vec![None];
+    }
+    // rho(u) = |u - principal|^2 / half_diag^2 per projector, and its value at the image centre.
+    let rho = |k: usize, u: [f32; 2]| -> f64 {
+        let p = &model.projectors[k];
+        let hd2 = (p.width as f64).powi(2) / 4.0 + (p.height as f64).powi(2) / 4.0;
+        ((u[0] as f64 - p.cx).powi(2) + (u[1] as f64 - p.cy).powi(2)) / hd2
+    };
+    let rho_c: Vec<f64> = (0..n)
+        .map(|k| {
+            let p = &model.projectors[k];
+            rho(k, [(p.width as f32 - 1.0) / 2.0, (p.height as f32 - 1.0) / 2.0])
+        })
+        .collect();
+    // Observations: (j, k, y = ln(lit_j / lit_k) - ln(E_j / E_k), rho_j, rho_k).
+    let pixels = model.pixel_count();
+    let stride = (pixels / 400_000).max(1);
+    let mut obs = Vec::new();
+    for i in (0..pixels).step_by(stride) {
+        let e: Vec<Option<f64>> = (0..n).map(|k| full_irradiance(model, k, i)).collect();
+        for j in 0..n {
+            for k in j + 1..n {
+                let (Some(ej), Some(ek)) = (e[j], e[k]) else { continue };
+                let (lj, lk) = (lits[j][i], lits[k][i]);
+                let (sj, sk) = ((lj[0] + lj[1] + lj[2]) as f64, (lk[0] + lk[1] + lk[2]) as f64);
+                if sj < 0.05 || sk < 0.05 {
+                    continue;
+                }
+                let (uj, uk) = (model.correspondences[j][i], model.correspondences[k][i]);
+                obs.push((j, k, (sj / sk).ln() - (ej / ek).ln(), rho(j, uj), rho(k, uk)));
+            }
+        }
+    }
+    if obs.len() < 1000 {
+        warnings.push(format!(
+            "only {} camera pixels are lit by two projectors: vignetting is taken as uniform (the gain \
+             absorbs it)",
+            obs.len()
+        ));
+        return vec![None; n];
+    }
+    // Parameters: log intensity of projectors 1..n (projector 0 is the gauge), then a_0..a_{n-1}.
+    let np = (n - 1) + n;
+    let mut theta = vec![0.0f64; np];
+    let lv = |a: f64, r: f64, rc: f64| (1.0 - a * r).max(1e-3).ln() - (1.0 - a * rc).max(1e-3).ln();
+    let dlv = |a: f64, r: f64, rc: f64| -r / (1.0 - a * r).max(1e-3) + rc / (1.0 - a * rc).max(1e-3);
+    let mut keep = vec![true; obs.len()];
+    for iter in 0..12 {
+        let mut h = nalgebra::DMatrix::<f64>::zeros(np, np);
+        let mut g = nalgebra::DVector::<f64>::zeros(np);
+        let mut resid = Vec::with_capacity(obs.len());
+        for (o, &(j, k, y, rj, rk)) in obs.iter().enumerate() {
+            let (aj, ak) = (theta[n - 1 + j], theta[n - 1 + k]);
+            let lj = if j == 0 { 0.0 } else { theta[j - 1] };
+            let lk = if k == 0 { 0.0 } else { theta[k - 1] };
+            let r = y - (lj - lk + lv(aj, rj, rho_c[j]) - lv(ak, rk, rho_c[k]));
+            resid.push(r.abs());
+            if !keep[o] {
+                continue;
+            }
+            let mut jac = [(0usize, 0.0f64); 4];
+            let mut nj = 0;
+            if j > 0 {
+                jac[nj] = (j - 1, 1.0);
+                nj += 1;
+            }
+            if k > 0 {
+                jac[nj] = (k - 1, -1.0);
+                nj += 1;
+            }
+            jac[nj] = (n - 1 + j, dlv(aj, rj, rho_c[j]));
+            jac[nj + 1] = (n - 1 + k, -dlv(ak, rk, rho_c[k]));
+            nj += 2;
+            for &(a, va) in &jac[..nj] {
+                g[a] += va * r;
+                for &(b, vb) in &jac[..nj] {
+                    h[(a, b)] += va * vb;
+                }
+            }
+        }
+        // Reject outliers (shadow edges, grazing normals) after the first solves.
+        if iter >= 2 {
+            let mut sorted = resid.clone();
+            let mid = sorted.len() / 2;
+            let mad = *sorted.select_nth_unstable_by(mid, f64::total_cmp).1;
+            for (kp, r) in keep.iter_mut().zip(&resid) {
+                *kp = *r <= 4.0 * 1.4826 * mad.max(1e-6);
+            }
+        }
+        for d in 0..np {
+            h[(d, d)] += 1e-6;
+        }
+        let Some(step) = h.lu().solve(&g) else { break };
+        for d in 0..np {
+            theta[d] += step[d];
+        }
+        for a in &mut theta[n - 1..] {
+            *a = a.clamp(-0.5, 0.6);
+        }
+        if step.amax() < 1e-7 {
+            break;
+        }
+    }
+    let coeffs: Vec<f64> = theta[n - 1..].to_vec();
+    for (k, &a) in coeffs.iter().enumerate() {
+        let p = &mut model.projectors[k];
+        p.lux_at_1m = if k == 0 { 1.0 } else { theta[k - 1].exp() };
+        let (w, h) = (p.width, p.height);
+        let hd2 = (w as f64).powi(2) / 4.0 + (h as f64).powi(2) / 4.0;
+        let (cx, cy) = (p.cx, p.cy);
+        let at_c = 1.0 - a * rho_c[k];
+        p.vignetting = (0..h)
+            .flat_map(|y| (0..w).map(move |x| (x, y)))
+            .map(|(x, y)| {
+                let r = ((x as f64 - cx).powi(2) + (y as f64 - cy).powi(2)) / hd2;
+                ((1.0 - a * r) / at_c).max(0.0) as f32
+            })
+            .collect();
+    }
+    coeffs.into_iter().map(Some).collect()
+}
+
+/// Draws a line into `img` (clipped), for the plots below.
+fn line(img: &mut image::RgbImage, a: (f64, f64), b: (f64, f64), colour: [u8; 3]) {
+    let steps = ((b.0 - a.0).abs().max((b.1 - a.1).abs()).ceil() as usize).max(1);
+    for s in 0..=steps {
+        let t = s as f64 / steps as f64;
+        let (x, y) = ((a.0 + (b.0 - a.0) * t).round(), (a.1 + (b.1 - a.1) * t).round());
+        if x >= 0.0 && y >= 0.0 && (x as u32) < img.width() && (y as u32) < img.height() {
+            img.put_pixel(x as u32, y as u32, image::Rgb(colour));
+        }
+    }
+}
+
+/// A projector's response curves (red, green, blue) over input level 0..255 (x) and relative
+/// output 0..1 (y), gridlines every 32 levels and 0.1, measured levels as squares.
+pub fn response_plot(rad: &ProjectorRadiometry) -> image::RgbImage {
+    let (w, h, m) = (560u32, 420u32, 30.0f64);
+    let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255; 3]));
+    let (pw, ph) = (w as f64 - 2.0 * m, h as f64 - 2.0 * m);
+    let at = |level: f64, out: f64| (m + pw * level / 255.0, h as f64 - m - ph * out);
+    for l in (0..=256).step_by(32) {
+        let l = (l as f64).min(255.0);
+        line(&mut img, at(l, 0.0), at(l, 1.0), [225; 3]);
+    }
+    for i in 0..=10 {
+        line(&mut img, at(0.0, i as f64 / 10.0), at(255.0, i as f64 / 10.0), [225; 3]);
+    }
+    line(&mut img, at(0.0, 0.0), at(255.0, 0.0), [0; 3]);
+    line(&mut img, at(0.0, 0.0), at(0.0, 1.0), [0; 3]);
+    let colours = [[200, 30, 30], [20, 150, 40], [30, 60, 210]];
+    for (c, &colour) in colours.iter().enumerate() {
+        let r = &rad.response[c];
+        for v in 1..r.len() {
+            line(&mut img, at(v as f64 - 1.0, r[v - 1] as f64), at(v as f64, r[v] as f64), colour);
+        }
+        for &(l, o) in &rad.measured[c] {
+            let (x, y) = at(l as f64, o as f64);
+            let corners = [(x - 3.0, y - 3.0), (x + 3.0, y - 3.0), (x + 3.0, y + 3.0), (x - 3.0, y + 3.0)];
+            for e in 0..4 {
+                line(&mut img, corners[e], corners[(e + 1) % 4], colour);
+            }
+        }
+    }
+    img
+}
+
+/// Footprint size per projector pixel as a false-colour image (dark blue small, yellow at twice
+/// the median), black where no dot was measured.
+pub fn footprint_map(footprint: &[f32], width: u32, height: u32) -> image::RgbImage {
+    let mut vals: Vec<f32> = footprint.iter().copied().filter(|v| v.is_finite()).collect();
+    let scale = if vals.is_empty() {
+        1.0
+    } else {
+        let mid = vals.len() / 2;
+        2.0 * *vals.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    image::RgbImage::from_fn(width, height, |x, y| {
+        let v = footprint[(y * width + x) as usize];
+        if !v.is_finite() {
+            return image::Rgb([0; 3]);
+        }
+        let t = (v / scale.max(1e-6)).clamp(0.0, 1.0);
+        // Blue -> teal -> yellow.
+        let (r, g, b) = if t < 0.5 {
+            let s = t * 2.0;
+            (30.0 + 10.0 * s, 40.0 + 140.0 * s, 140.0 + 10.0 * s)
+        } else {
+            let s = (t - 0.5) * 2.0;
+            (40.0 + 210.0 * s, 180.0 + 50.0 * s, 150.0 - 120.0 * s)
+        };
+        image::Rgb([r as u8, g as u8, b as u8])
+    })
+}
+
+impl PhotometricReport {
+    /// Writes the figures people look at into `dir`: `response_proj<k>.png`,
+    /// `footprint_proj<k>.png` and `photometric.json` (counts, coverage, leakage, vignetting,
+    /// lux, warnings).
+    pub fn save(&self, dir: &Path, projector_sizes: &[(u32, u32)]) -> Result<(), ImageError> {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| ImageError::Write { path: dir.into(), source: image::ImageError::IoError(e) })?;
+        for (k, rad) in self.radiometry.iter().enumerate() {
+            let path = dir.join(format!("response_proj{k}.png"));
+            response_plot(rad).save(&path).map_err(|source| ImageError::Write { path, source })?;
+        }
+        for (k, (t, &(w, h))) in self.transport.iter().zip(projector_sizes).enumerate() {
+            if t.footprint.len() == (w * h) as usize {
+                let path = dir.join(format!("footprint_proj{k}.png"));
+                footprint_map(&t.footprint, w, h)
+                    .save(&path)
+                    .map_err(|source| ImageError::Write { path, source })?;
+            }
+        }
+        let summary = serde_json::json!({
+            "projectors": self.transport.iter().enumerate().map(|(k, t)| serde_json::json!({
+                "projector": k,
+                "dot_spacing": t.spacing,
+                "dots_snapped": t.dots,
+                "dots_predicted": t.predicted,
+                "dots_off_object": t.off_object,
+                "coverage_of_lit_pixels": t.coverage,
+                "correspondences_refined": t.refine.refined,
+                "correspondences_disagreeing": t.refine.disagreed,
+                "refine_median_shift_px": t.refine.median_shift,
+                "leakage": self.radiometry.get(k).map(|r| r.leakage),
+                "vignetting_coefficient": self.vignetting.get(k).copied().flatten(),
+                "lux": self.lux.iter().find(|l| l.projector == k).map(|l| serde_json::json!({
+                    "reading": l.reading, "reference_pixel": l.reference_pixel,
+                    "distance_mm": l.distance_mm, "lux_at_1m": l.lux_at_1m,
+                })),
+            })).collect::<Vec<_>>(),
+            "stray_lux": self.stray_lux,
+            "warnings": self.warnings,
+        });
+        let path = dir.join("photometric.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("summary serialises"))
+            .map_err(|e| ImageError::Write { path, source: image::ImageError::IoError(e) })
+    }
+}

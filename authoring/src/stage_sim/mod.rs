@@ -1,0 +1,676 @@
+//! The virtual stage: a physically based, seeded simulator of the whole stage (object,
+//! projectors, camera) that writes the same capture set as real hardware plus the ground
+//! truth only tests and `eval` read. See ARCHITECTURE.md, "Virtual stage".
+//!
+//! Geometry is precomputed once per scene (per camera pixel: surface point, normal, albedo,
+//! and for every projector the pixel footprint and the factor `lux_at_1m * cos / d^2`, zero
+//! where the projector cannot see the point), so each capture is a cheap gather.
+
+pub mod geometry;
+pub mod optics;
+pub mod paint;
+mod truth;
+
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use image::RgbImage;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use thiserror::Error;
+
+use self::geometry::{Part, Profile, Scene, Solid, V3};
+use self::optics::{CameraSpec, Integrator, ProjectorSpec, SimProjector};
+use self::paint::{Design, Deterioration, Palette};
+use crate::acquire::{self, AcquireConfig, AcquireError};
+use crate::capture_set::{CameraIntrinsics, CaptureManifest};
+use crate::hw::{Camera, DiffuseLight, HwError, ProjectorOutput};
+use crate::imgio::{ImageError, LinearImage};
+use crate::stage_model::{StageModel, StageModelError, Transport};
+
+pub use self::truth::{GROUND_TRUTH_DIR, Truth, load_config};
+
+/// Accepted camera sizes (each side).
+pub const CAMERA_RANGE: std::ops::RangeInclusive<u32> = 16..=8192;
+/// Accepted projector sizes (each side).
+pub const PROJECTOR_RANGE: std::ops::RangeInclusive<u32> = 16..=4096;
+/// Accepted projector counts.
+pub const PROJECTOR_COUNT_RANGE: std::ops::RangeInclusive<u32> = 1..=8;
+
+#[derive(Debug, Error)]
+pub enum StageSimError {
+    #[error("unknown scene {name:?} (expected one of: vase, bowl, jar)")]
+    UnknownScene { name: String },
+    #[error("{what} resolution {width}x{height} is out of range (expected {min}..={max} on each side)")]
+    Resolution { what: &'static str, width: u32, height: u32, min: u32, max: u32 },
+    #[error("projector count {0} is out of range (expected 1..=8)")]
+    ProjectorCount(u32),
+    #[error("{count} frames given for {expected} projectors")]
+    FrameCount { count: usize, expected: usize },
+    #[error(transparent)]
+    Hw(#[from] HwError),
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    #[error(transparent)]
+    StageModel(#[from] StageModelError),
+    #[error(transparent)]
+    Acquire(#[from] AcquireError),
+    #[error("cannot write {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path}: {problem}")]
+    Truth { path: PathBuf, problem: String },
+}
+
+/// The built-in objects.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SceneName {
+    Vase,
+    Bowl,
+    Jar,
+}
+
+impl SceneName {
+    pub const ALL: [SceneName; 3] = [SceneName::Vase, SceneName::Bowl, SceneName::Jar];
+
+    pub fn profile(self) -> Profile {
+        match self {
+            SceneName::Vase => Profile::Vase,
+            SceneName::Bowl => Profile::Bowl,
+            SceneName::Jar => Profile::Jar,
+        }
+    }
+
+    pub fn design(self) -> Design {
+        match self {
+            SceneName::Vase => Design::Vase,
+            SceneName::Bowl => Design::Bowl,
+            SceneName::Jar => Design::Jar,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            SceneName::Vase => "vase",
+            SceneName::Bowl => "bowl",
+            SceneName::Jar => "jar",
+        }
+    }
+}
+
+impl FromStr for SceneName {
+    type Err = StageSimError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|n| n.name() == s.to_ascii_lowercase())
+            .ok_or_else(|| StageSimError::UnknownScene { name: s.into() })
+    }
+}
+
+/// Everything that defines a built-in virtual stage. The same config always gives the same
+/// stage, captures included.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneConfig {
+    pub scene: SceneName,
+    pub seed: u64,
+    /// Camera `[width, height]`.
+    pub camera: [u32; 2],
+    /// Every projector's `[width, height]`.
+    pub projector: [u32; 2],
+    pub projectors: u32,
+    /// Whether the object is deteriorated (otherwise it shows its pristine paint).
+    pub deteriorate: bool,
+}
+
+impl Default for SceneConfig {
+    fn default() -> Self {
+        Self {
+            scene: SceneName::Vase,
+            seed: 1,
+            camera: [1024, 768],
+            projector: [1400, 1050],
+            projectors: 3,
+            deteriorate: true,
+        }
+    }
+}
+
+impl SceneConfig {
+    /// A tiny stage for tests in other modules: camera 160x120, projectors 128x96.
+    pub fn tiny(scene: SceneName, seed: u64) -> Self {
+        Self { scene, seed, camera: [160, 120], projector: [128, 96], ..Self::default() }
+    }
+
+    pub fn validate(&self) -> Result<(), StageSimError> {
+        let check = |what, [w, h]: [u32; 2], range: &std::ops::RangeInclusive<u32>| {
+            if range.contains(&w) && range.contains(&h) {
+                Ok(())
+            } else {
+                Err(StageSimError::Resolution {
+                    what,
+                    width: w,
+                    height: h,
+                    min: *range.start(),
+                    max: *range.end(),
+                })
+            }
+        };
+        check("camera", self.camera, &CAMERA_RANGE)?;
+        check("projector", self.projector, &PROJECTOR_RANGE)?;
+        if !PROJECTOR_COUNT_RANGE.contains(&self.projectors) {
+            return Err(StageSimError::ProjectorCount(self.projectors));
+        }
+        Ok(())
+    }
+}
+
+/// A stage described part by part; built-in scenes come from [`SceneConfig`], tests build
+/// their own (a flat board, an occluder, an ideal projector).
+#[derive(Clone, Debug)]
+pub struct Setup {
+    pub label: String,
+    pub seed: u64,
+    pub camera: CameraIntrinsics,
+    pub camera_spec: CameraSpec,
+    pub projectors: Vec<SimProjector>,
+    /// The specs the projectors were built from (empty for hand-built projectors).
+    pub projector_specs: Vec<ProjectorSpec>,
+    pub scene: Scene,
+    pub design: Design,
+    pub deterioration: Deterioration,
+    /// Illuminance of the room's diffuse light (for the photo), lux.
+    pub diffuse_lux: f64,
+    /// Stray room light that is always there, lux.
+    pub stray_lux: f64,
+}
+
+/// Centre of the object in the camera frame, mm.
+pub const OBJECT_CENTRE: [f64; 3] = [0.0, 0.0, 900.0];
+/// The camera looks down on the object by this angle (the object's axis leans towards it).
+pub const VIEW_DOWN_DEG: f64 = 4.0;
+
+impl Setup {
+    pub fn from_config(cfg: &SceneConfig) -> Result<Self, StageSimError> {
+        cfg.validate()?;
+        let centre = V3::from(OBJECT_CENTRE);
+        let down = VIEW_DOWN_DEG.to_radians();
+        let up = V3::new(0.0, -down.cos(), -down.sin());
+        let profile = cfg.scene.profile();
+        let height = profile.height();
+        let solid = Solid::new(profile, centre - up * (height * 0.5), up, -centre);
+        let camera_spec = CameraSpec::default();
+        let n = cfg.projectors as usize;
+        let projector_specs: Vec<ProjectorSpec> =
+            (0..n).map(|k| ProjectorSpec::default_for(k, n, cfg.seed)).collect();
+        let projectors = projector_specs
+            .iter()
+            .map(|s| SimProjector::from_spec(s, cfg.projector[0], cfg.projector[1], &centre, &up))
+            .collect();
+        Ok(Self {
+            label: format!("virtual stage: {}, seed {}", cfg.scene.name(), cfg.seed),
+            seed: cfg.seed,
+            camera: camera_spec.intrinsics(cfg.camera[0], cfg.camera[1]),
+            camera_spec,
+            projectors,
+            projector_specs,
+            scene: Scene { solids: vec![solid] },
+            design: cfg.scene.design(),
+            deterioration: if cfg.deteriorate {
+                Deterioration::generate(cfg.seed, height)
+            } else {
+                Deterioration::none()
+            },
+            diffuse_lux: 350.0,
+            stray_lux: 0.5,
+        })
+    }
+}
+
+/// What the camera pixel sees, fixed for the scene.
+#[derive(Clone, Copy, Debug)]
+pub struct PixelTruth {
+    /// Surface point (mm, camera frame); NaN where the pixel sees no object.
+    pub point: [f32; 3],
+    pub normal: [f32; 3],
+    pub albedo: [f32; 3],
+    pub albedo_pristine: [f32; 3],
+    /// Class indices; 255 where no object.
+    pub label: u8,
+    pub label_pristine: u8,
+    pub chipped: bool,
+    pub cracked: bool,
+    pub stain: f32,
+    pub fade: f32,
+}
+
+impl PixelTruth {
+    const EMPTY: Self = Self {
+        point: [f32::NAN; 3],
+        normal: [f32::NAN; 3],
+        albedo: [0.0; 3],
+        albedo_pristine: [0.0; 3],
+        label: 255,
+        label_pristine: 255,
+        chipped: false,
+        cracked: false,
+        stain: 0.0,
+        fade: 0.0,
+    };
+
+    pub fn is_object(&self) -> bool {
+        self.label != 255
+    }
+}
+
+/// One projector as seen from one camera pixel: where the pixel's footprint falls on the
+/// projector image and how much light a unit of projector output gives there.
+#[derive(Clone, Copy, Debug, Default)]
+struct Sample {
+    u: f32,
+    v: f32,
+    hx: f32,
+    hy: f32,
+    /// `lux_at_1m * cos(theta) / (d / 1000)^2`; 0 where the projector cannot light the point.
+    g: f32,
+}
+
+/// The virtual stage with its geometry precomputed.
+#[derive(Debug)]
+pub struct VirtualStage {
+    setup: Setup,
+    config: Option<SceneConfig>,
+    palette: Palette,
+    pixels: Vec<PixelTruth>,
+    /// Per projector, per camera pixel.
+    samples: Vec<Vec<Sample>>,
+    /// Per projector, per camera pixel: irradiance (lux) while the projector shows black.
+    black_lux: Vec<Vec<[f32; 3]>>,
+}
+
+impl VirtualStage {
+    /// Builds a built-in scene.
+    pub fn new(cfg: &SceneConfig) -> Result<Self, StageSimError> {
+        let mut s = Self::from_setup(Setup::from_config(cfg)?);
+        s.config = Some(cfg.clone());
+        Ok(s)
+    }
+
+    /// Builds a stage from explicit parts and precomputes its geometry.
+    pub fn from_setup(setup: Setup) -> Self {
+        let cam = setup.camera.clone();
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let palette = setup.design.palette();
+        let far = 1.0e5;
+        let hits: Vec<Option<geometry::Hit>> = (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                setup.scene.cast(&V3::zeros(), &ray(&cam, x, y), far)
+            })
+            .collect();
+        let pixels: Vec<PixelTruth> = hits
+            .par_iter()
+            .map(|hit| hit.map_or(PixelTruth::EMPTY, |hit| surface(&setup, &palette, &hit)))
+            .collect();
+        let samples: Vec<Vec<Sample>> = setup
+            .projectors
+            .iter()
+            .map(|p| {
+                hits.par_iter()
+                    .enumerate()
+                    .map(|(i, hit)| match hit {
+                        Some(hit) => sample(&setup.scene, &cam, p, (i % w) as f64, (i / w) as f64, hit),
+                        None => Sample::default(),
+                    })
+                    .collect()
+            })
+            .collect();
+        let mut stage = Self { setup, config: None, palette, pixels, samples, black_lux: vec![] };
+        stage.black_lux = (0..stage.setup.projectors.len())
+            .map(|k| {
+                let p = &stage.setup.projectors[k];
+                let black = RgbImage::new(p.width, p.height);
+                stage.projector_lux(k, &black)
+            })
+            .collect();
+        stage
+    }
+
+    pub fn setup(&self) -> &Setup {
+        &self.setup
+    }
+
+    pub fn config(&self) -> Option<&SceneConfig> {
+        self.config.as_ref()
+    }
+
+    pub fn camera(&self) -> &CameraIntrinsics {
+        &self.setup.camera
+    }
+
+    pub fn palette(&self) -> &Palette {
+        &self.palette
+    }
+
+    pub fn pixels(&self) -> &[PixelTruth] {
+        &self.pixels
+    }
+
+    pub fn projector_count(&self) -> usize {
+        self.setup.projectors.len()
+    }
+
+    /// Checks one frame per projector, each at its projector's resolution.
+    pub fn check_frames(&self, frames: &[RgbImage]) -> Result<(), StageSimError> {
+        if frames.len() != self.projector_count() {
+            return Err(StageSimError::FrameCount { count: frames.len(), expected: self.projector_count() });
+        }
+        for (k, (f, p)) in frames.iter().zip(&self.setup.projectors).enumerate() {
+            if f.dimensions() != (p.width, p.height) {
+                return Err(HwError::FrameSize {
+                    projector: k,
+                    got_w: f.width(),
+                    got_h: f.height(),
+                    want_w: p.width,
+                    want_h: p.height,
+                }
+                .into());
+            }
+        }
+        Ok(())
+    }
+
+    /// Irradiance in lux at each camera pixel's surface point from projector `k` showing
+    /// `frame` (black level included).
+    fn projector_lux(&self, k: usize, frame: &RgbImage) -> Vec<[f32; 3]> {
+        let p = &self.setup.projectors[k];
+        let light = p.light(frame);
+        let integ = Integrator::new(&light, p.width as usize, p.height as usize);
+        self.samples[k]
+            .par_iter()
+            .map(|s| {
+                if s.g <= 0.0 {
+                    return [0.0; 3];
+                }
+                let m = integ.box_mean(s.u as f64, s.v as f64, s.hx as f64, s.hy as f64);
+                m.map(|c| (c * s.g as f64) as f32)
+            })
+            .collect()
+    }
+
+    /// Irradiance in lux per camera pixel from all projectors showing `frames` (their black
+    /// level included, room light excluded). Zero where no object.
+    pub fn irradiance(&self, frames: &[RgbImage]) -> Result<Vec<[f32; 3]>, StageSimError> {
+        self.check_frames(frames)?;
+        let n = self.pixels.len();
+        let mut total = vec![[0.0f32; 3]; n];
+        for (k, f) in frames.iter().enumerate() {
+            let computed;
+            let lux: &[[f32; 3]] = if f.as_raw().iter().all(|&v| v == 0) {
+                &self.black_lux[k]
+            } else {
+                computed = self.projector_lux(k, f);
+                &computed
+            };
+            total.par_iter_mut().zip(lux.par_iter()).for_each(|(t, l)| {
+                for c in 0..3 {
+                    t[c] += l[c];
+                }
+            });
+        }
+        Ok(total)
+    }
+
+    /// The noise-free camera image with `frames` shown and the room's diffuse light on or off:
+    /// `gain_per_lux * albedo * (projector irradiance + room light)`, clipped at full scale.
+    pub fn render(&self, frames: &[RgbImage], diffuse: bool) -> Result<LinearImage, StageSimError> {
+        let e = self.irradiance(frames)?;
+        let room = self.setup.stray_lux + if diffuse { self.setup.diffuse_lux } else { 0.0 };
+        let k = self.setup.camera_spec.gain_per_lux;
+        let cam = &self.setup.camera;
+        let data = self
+            .pixels
+            .par_iter()
+            .zip(e.par_iter())
+            .map(|(p, e)| {
+                [0, 1, 2].map(|c| ((k * p.albedo[c] as f64 * (e[c] as f64 + room)) as f32).min(1.0))
+            })
+            .collect();
+        Ok(LinearImage { width: cam.width, height: cam.height, data })
+    }
+
+    /// A camera exposure: [`render`](Self::render) plus seeded noise for shot number `shot`
+    /// (the same shot number always gives the same noise, whatever the thread count).
+    pub fn capture(
+        &self,
+        frames: &[RgbImage],
+        diffuse: bool,
+        shot: u64,
+    ) -> Result<LinearImage, StageSimError> {
+        let mut img = self.render(frames, diffuse)?;
+        let spec = &self.setup.camera_spec;
+        let seed = mix(self.setup.seed, shot);
+        let w = img.width as usize;
+        img.data.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+            let mut rng = ChaCha8Rng::seed_from_u64(mix(seed, y as u64));
+            for px in row {
+                for c in px.iter_mut() {
+                    let sd = (spec.read_noise.powi(2) + spec.shot_noise * (*c as f64).max(0.0)).sqrt();
+                    *c = (*c as f64 + sd * normal(&mut rng)).clamp(0.0, 1.0) as f32;
+                }
+            }
+        });
+        Ok(img)
+    }
+
+    /// Black frames for every projector.
+    pub fn black_frames(&self) -> Vec<RgbImage> {
+        self.setup.projectors.iter().map(|p| RgbImage::new(p.width, p.height)).collect()
+    }
+
+    /// The true stage model (what a perfect calibration would find).
+    pub fn truth(&self) -> StageModel {
+        let k = self.setup.camera_spec.gain_per_lux as f32;
+        let ambient = self.render(&self.black_frames(), false).expect("black frames fit").data;
+        StageModel {
+            camera: self.setup.camera.clone(),
+            projectors: self.setup.projectors.iter().map(|p| p.model()).collect(),
+            points: self.pixels.iter().map(|p| p.point).collect(),
+            normals: self.pixels.iter().map(|p| p.normal).collect(),
+            correspondences: self
+                .samples
+                .iter()
+                .map(|s| s.iter().map(|s| if s.g > 0.0 { [s.u, s.v] } else { [f32::NAN; 2] }).collect())
+                .collect(),
+            transport: vec![Transport::default(); self.projector_count()],
+            gain: self.pixels.iter().map(|p| p.albedo.map(|a| a * k)).collect(),
+            ambient,
+            provenance: format!("ground truth of {}", self.setup.label),
+        }
+    }
+
+    /// Writes the ground-truth folder (`dir/ground-truth/`): see ARCHITECTURE.md.
+    pub fn write_ground_truth(&self, dir: &Path) -> Result<(), StageSimError> {
+        truth::write(self, &dir.join(GROUND_TRUTH_DIR))
+    }
+
+    /// Writes a whole capture set into `dir` (created if needed): ground truth first, then
+    /// the acquisition loop over this stage's simulated hardware. `progress(done, total)`.
+    pub fn write_capture_set(
+        &self,
+        dir: &Path,
+        cfg: &AcquireConfig,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<CaptureManifest, StageSimError> {
+        std::fs::create_dir_all(dir).map_err(|source| StageSimError::Io { path: dir.into(), source })?;
+        self.write_ground_truth(dir)?;
+        let mut rig = SimRig::new(self);
+        let mut clock = crate::hw::FakeClock::default();
+        Ok(acquire::acquire(&mut rig, &mut clock, cfg, dir, &self.setup.label, progress)?)
+    }
+}
+
+/// The virtual stage as hardware: projectors that hold frames, a camera that captures them.
+#[derive(Debug)]
+pub struct SimRig<'a> {
+    stage: &'a VirtualStage,
+    frames: Vec<RgbImage>,
+    diffuse: bool,
+    shots: u64,
+}
+
+impl<'a> SimRig<'a> {
+    pub fn new(stage: &'a VirtualStage) -> Self {
+        Self { stage, frames: stage.black_frames(), diffuse: false, shots: 0 }
+    }
+}
+
+impl Camera for SimRig<'_> {
+    fn intrinsics(&self) -> CameraIntrinsics {
+        self.stage.setup.camera.clone()
+    }
+
+    fn grab(&mut self) -> Result<LinearImage, HwError> {
+        let img = self
+            .stage
+            .capture(&self.frames, self.diffuse, self.shots)
+            .map_err(|e| HwError::Device { device: "virtual camera".into(), problem: e.to_string() })?;
+        self.shots += 1;
+        Ok(img)
+    }
+}
+
+impl ProjectorOutput for SimRig<'_> {
+    fn projector_count(&self) -> usize {
+        self.frames.len()
+    }
+
+    fn resolution(&self, projector: usize) -> Result<(u32, u32), HwError> {
+        let p = self
+            .stage
+            .setup
+            .projectors
+            .get(projector)
+            .ok_or(HwError::NoSuchProjector { projector, count: self.frames.len() })?;
+        Ok((p.width, p.height))
+    }
+
+    fn show(&mut self, projector: usize, frame: &RgbImage) -> Result<(), HwError> {
+        let (w, h) = self.resolution(projector)?;
+        if frame.dimensions() != (w, h) {
+            return Err(HwError::FrameSize {
+                projector,
+                got_w: frame.width(),
+                got_h: frame.height(),
+                want_w: w,
+                want_h: h,
+            });
+        }
+        self.frames[projector].clone_from(frame);
+        Ok(())
+    }
+}
+
+impl DiffuseLight for SimRig<'_> {
+    fn set_diffuse(&mut self, on: bool) -> Result<(), HwError> {
+        self.diffuse = on;
+        Ok(())
+    }
+}
+
+/// Unit ray through camera pixel `(x, y)`.
+pub fn ray(cam: &CameraIntrinsics, x: f64, y: f64) -> V3 {
+    V3::new((x - cam.cx) / cam.fx, (y - cam.cy) / cam.fy, 1.0).normalize()
+}
+
+fn surface(setup: &Setup, palette: &Palette, hit: &geometry::Hit) -> PixelTruth {
+    let solid = &setup.scene.solids[hit.solid];
+    let (h, _, theta) = solid.local(&hit.point);
+    let r = solid.radius_at(h);
+    let pristine = match hit.part {
+        Part::Side => setup.design.class_at(theta, h, r),
+        // The caps are unpainted clay (the camera rarely sees them).
+        Part::Bottom | Part::Top => palette.clay,
+    };
+    let (albedo, label, wear) = setup.deterioration.apply(palette, pristine, theta, h, r);
+    let albedo_pristine = palette.classes[pristine as usize].albedo;
+    let f = |v: V3| [v.x as f32, v.y as f32, v.z as f32];
+    PixelTruth {
+        point: f(hit.point),
+        normal: f(hit.normal),
+        albedo,
+        albedo_pristine,
+        label,
+        label_pristine: pristine,
+        chipped: wear.chipped,
+        cracked: wear.cracked,
+        stain: wear.stain as f32,
+        fade: wear.fade as f32,
+    }
+}
+
+/// Where camera pixel `(x, y)`'s footprint lands on projector `p` and how strongly it is lit.
+fn sample(
+    scene: &Scene,
+    cam: &CameraIntrinsics,
+    p: &SimProjector,
+    x: f64,
+    y: f64,
+    hit: &geometry::Hit,
+) -> Sample {
+    let Some(uv) = p.project(&hit.point) else { return Sample::default() };
+    if !p.on_image(uv) {
+        return Sample::default();
+    }
+    let to = p.centre - hit.point;
+    let d = to.norm();
+    let cos = hit.normal.dot(&(to / d));
+    if cos <= 0.0 || !scene.visible(&hit.point, &hit.normal, &p.centre) {
+        return Sample::default();
+    }
+    // The pixel's footprint: project its edges, moved on the tangent plane, to the projector.
+    let n = hit.normal;
+    let np = n.dot(&hit.point);
+    let on_plane = |xx: f64, yy: f64| {
+        let r = ray(cam, xx, yy);
+        let den = n.dot(&r);
+        (den.abs() > 1e-9).then(|| r * (np / den)).and_then(|q| p.project(&q))
+    };
+    let (hx, hy) =
+        match (on_plane(x + 0.5, y), on_plane(x - 0.5, y), on_plane(x, y + 0.5), on_plane(x, y - 0.5)) {
+            (Some(a1), Some(a0), Some(b1), Some(b0)) => {
+                let (ax, ay) = (a1[0] - a0[0], a1[1] - a0[1]);
+                let (bx, by) = (b1[0] - b0[0], b1[1] - b0[1]);
+                (0.5 * (ax.abs() + bx.abs()), 0.5 * (ay.abs() + by.abs()))
+            }
+            _ => (1.0, 1.0),
+        };
+    Sample {
+        u: uv[0] as f32,
+        v: uv[1] as f32,
+        hx: hx.clamp(0.05, 64.0) as f32,
+        hy: hy.clamp(0.05, 64.0) as f32,
+        g: (p.lux_at_1m * cos / (d / 1000.0).powi(2)) as f32,
+    }
+}
+
+/// Mixes a seed and a counter into a new seed (SplitMix64 finaliser).
+fn mix(seed: u64, n: u64) -> u64 {
+    let mut z = seed ^ n.wrapping_add(0x9E37_79B9_7F4A_7C15).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// A standard normal sample (Box-Muller; one of the pair is enough here).
+fn normal(rng: &mut ChaCha8Rng) -> f64 {
+    let u1: f64 = rng.r#gen::<f64>().max(1e-300);
+    let u2: f64 = rng.r#gen();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,209 @@
+//! Physics of the virtual stage against closed forms: inverse-square and cosine falloff,
+//! shadows, the configured response and the black level.
+
+use image::{Rgb, RgbImage};
+
+use super::geometry::{Profile, Scene, Solid, V3};
+use super::optics::{CameraSpec, SimProjector};
+use super::paint::{Design, Deterioration};
+use super::*;
+
+const W: u32 = 64;
+const H: u32 = 48;
+const LUX: f64 = 450.0;
+
+fn camera() -> CameraIntrinsics {
+    CameraIntrinsics { width: W, height: H, fx: 80.0, fy: 80.0, cx: 31.5, cy: 23.5 }
+}
+
+/// A flat board through (0, 0, 1000) whose normal is the camera's -z turned by `tilt_deg`
+/// about the y axis, lit by one ideal projector at `proj`.
+fn board(tilt_deg: f64, proj: V3, extra: Vec<Solid>) -> Setup {
+    let t = tilt_deg.to_radians();
+    let axis = V3::new(t.sin(), 0.0, t.cos()); // the bottom cap (facing -axis) is the board
+    let board = Solid::new(
+        Profile::Cylinder { radius: 900.0, height: 5.0 },
+        V3::new(0.0, 0.0, 1000.0),
+        axis,
+        V3::new(0.0, 1.0, 0.0),
+    );
+    let mut solids = vec![board];
+    solids.extend(extra);
+    Setup {
+        label: "test board".into(),
+        seed: 3,
+        camera: camera(),
+        camera_spec: CameraSpec::default(),
+        projectors: vec![SimProjector::ideal(80, 60, 70.0, proj, V3::new(0.0, 0.0, 1000.0), LUX)],
+        projector_specs: vec![],
+        scene: Scene { solids },
+        design: Design::Uniform,
+        deterioration: Deterioration::none(),
+        diffuse_lux: 0.0,
+        stray_lux: 0.0,
+    }
+}
+
+fn frame(v: [u8; 3]) -> Vec<RgbImage> {
+    vec![RgbImage::from_pixel(80, 60, Rgb(v))]
+}
+
+/// Closed form for the board: irradiance from full white at camera pixel `(x, y)`.
+fn expected_white(tilt_deg: f64, proj: V3, x: u32, y: u32) -> f64 {
+    let t = tilt_deg.to_radians();
+    let n = -V3::new(t.sin(), 0.0, t.cos());
+    let r = ray(&camera(), x as f64, y as f64);
+    let p = r * (n.dot(&V3::new(0.0, 0.0, 1000.0)) / n.dot(&r));
+    let to = proj - p;
+    let d = to.norm();
+    LUX * n.dot(&to).max(0.0) / d / (d / 1000.0).powi(2)
+}
+
+fn check_falloff(tilt: f64, proj: V3) {
+    let stage = VirtualStage::from_setup(board(tilt, proj, vec![]));
+    let e = stage.irradiance(&frame([255; 3])).unwrap();
+    let mut checked = 0;
+    for y in 4..H - 4 {
+        for x in 4..W - 4 {
+            let want = expected_white(tilt, proj, x, y);
+            let got = e[(y * W + x) as usize];
+            for c in got {
+                assert!((c as f64 - want).abs() < 1e-4 * want, "tilt {tilt} px ({x},{y}): {c} vs {want}");
+            }
+            checked += 1;
+        }
+    }
+    assert!(checked > 1000);
+    // Near the centre the light is close to lux_at_1m at 1 m.
+    assert!(e[(24 * W + 32) as usize][0] > 300.0);
+}
+
+#[test]
+fn flat_board_head_on_follows_inverse_square_and_cosine() {
+    check_falloff(0.0, V3::new(0.0, 0.0, 0.0));
+}
+
+#[test]
+fn flat_board_at_an_angle_follows_cosine_and_distance() {
+    check_falloff(35.0, V3::new(-350.0, 60.0, 150.0));
+    check_falloff(-20.0, V3::new(250.0, -100.0, 50.0));
+}
+
+#[test]
+fn shadowed_points_get_none_of_the_projector_light() {
+    // An upright post between the projector and the board casts a shadow on it.
+    let proj = V3::new(420.0, 0.0, 100.0);
+    let post_centre = V3::new(200.0, 0.0, 560.0);
+    let post = |r: f64| {
+        Solid::new(
+            Profile::Cylinder { radius: r, height: 200.0 },
+            post_centre + V3::new(0.0, 100.0, 0.0),
+            V3::new(0.0, -1.0, 0.0),
+            V3::new(0.0, 0.0, -1.0),
+        )
+    };
+    let stage = VirtualStage::from_setup(board(0.0, proj, vec![post(30.0)]));
+    let e = stage.irradiance(&frame([255; 3])).unwrap();
+    let truth = stage.truth();
+    let (inner, outer) = (post(27.0), post(33.0));
+    // Whether the straight path from p to the projector crosses a solid (dense sampling).
+    let blocked = |s: &Solid, p: V3| (1..2000).any(|i| s.contains(&(p + (proj - p) * (i as f64 / 2000.0))));
+    let (mut dark, mut lit) = (0, 0);
+    for (i, (point, lux)) in truth.points.iter().zip(&e).enumerate() {
+        let p = V3::new(point[0] as f64, point[1] as f64, point[2] as f64);
+        if (p.z - 1000.0).abs() > 0.01 {
+            continue; // the camera sees the post here, not the board
+        }
+        if blocked(&inner, p) {
+            assert_eq!(*lux, [0.0; 3], "pixel {i} is in the post's shadow");
+            assert!(truth.correspondences[0][i][0].is_nan());
+            dark += 1;
+        } else if !blocked(&outer, p) {
+            assert!(lux[0] > 100.0, "pixel {i} is lit");
+            lit += 1;
+        }
+    }
+    assert!(dark > 20 && lit > 500, "dark {dark} lit {lit}");
+}
+
+#[test]
+fn response_curve_and_black_level_are_applied_as_configured() {
+    let mut setup = board(0.0, V3::zeros(), vec![]);
+    let p = &mut setup.projectors[0];
+    p.black = [0.004, 0.006, 0.01];
+    // A distinct curve per channel: gamma 1.8, 2.2, 2.6.
+    for (c, g) in [1.8f32, 2.2, 2.6].into_iter().enumerate() {
+        p.response[c] = (0..256).map(|v| (v as f32 / 255.0).powf(g)).collect();
+    }
+    let stage = VirtualStage::from_setup(setup);
+    let i = (24 * W + 32) as usize;
+    let white = stage.irradiance(&frame([255; 3])).unwrap()[i];
+    let black = stage.irradiance(&frame([0; 3])).unwrap()[i];
+    let unit = expected_white(0.0, V3::zeros(), 32, 24) as f32; // lux per unit output
+    for c in 0..3 {
+        let b = [0.004, 0.006, 0.01][c];
+        assert!((black[c] - unit * b).abs() < 1e-4 * unit, "black level, channel {c}");
+        assert!((white[c] - unit * (1.0 + b)).abs() < 1e-4 * unit);
+    }
+    for level in [16u8, 64, 128, 200] {
+        for c in 0..3 {
+            let mut v = [0u8; 3];
+            v[c] = level;
+            let e = stage.irradiance(&frame(v)).unwrap()[i];
+            let g = [1.8f32, 2.2, 2.6][c];
+            let want = unit * ((level as f32 / 255.0).powf(g) + [0.004, 0.006, 0.01][c]);
+            assert!((e[c] - want).abs() < 1e-4 * unit, "level {level} channel {c}: {} vs {want}", e[c]);
+            // The other channels stay at their black level.
+            let o = (c + 1) % 3;
+            assert!((e[o] - black[o]).abs() < 1e-6 * unit);
+        }
+    }
+    // The camera sees albedo times irradiance (times its gain); the board is a cap of a
+    // solid, and caps are bare clay.
+    let img = stage.render(&frame([255; 3]), false).unwrap();
+    let palette = Design::Uniform.palette();
+    let a = palette.classes[palette.clay as usize].albedo[0] as f64;
+    let want = CameraSpec::default().gain_per_lux * a * white[0] as f64;
+    assert!((img.data[i][0] as f64 - want).abs() < 1e-5);
+}
+
+#[test]
+fn captures_are_seeded_and_noisy_around_the_render() {
+    let stage = VirtualStage::from_setup(board(0.0, V3::zeros(), vec![]));
+    let f = frame([200; 3]);
+    let a = stage.capture(&f, false, 5).unwrap();
+    let b = stage.capture(&f, false, 5).unwrap();
+    let c = stage.capture(&f, false, 6).unwrap();
+    let clean = stage.render(&f, false).unwrap();
+    assert_eq!(a, b);
+    assert_ne!(a, c);
+    let mean_err: f64 =
+        a.data.iter().zip(&clean.data).map(|(x, y)| (x[1] - y[1]) as f64).sum::<f64>() / a.data.len() as f64;
+    assert!(mean_err.abs() < 1e-3, "noise is zero-mean: {mean_err}");
+}
+
+#[test]
+fn built_in_scenes_have_sensible_light_levels_and_truth() {
+    for scene in SceneName::ALL {
+        let stage = VirtualStage::new(&SceneConfig::tiny(scene, 2)).unwrap();
+        let truth = stage.truth();
+        truth.validate().unwrap();
+        let object = stage.pixels().iter().filter(|p| p.is_object()).count();
+        let n = stage.pixels().len();
+        assert!(object > n / 8 && object < n * 3 / 4, "{scene:?}: object covers {object} of {n}");
+        for k in 0..3 {
+            let mut frames = stage.black_frames();
+            frames[k] = RgbImage::from_pixel(128, 96, Rgb([255; 3]));
+            let e = stage.irradiance(&frames).unwrap();
+            let mut lit: Vec<f32> = e.iter().map(|v| v[1]).filter(|&v| v > 1.0).collect();
+            lit.sort_by(f32::total_cmp);
+            let peak = lit[lit.len() * 95 / 100];
+            assert!((250.0..700.0).contains(&peak), "{scene:?} projector {k}: peak {peak} lux");
+            let seen = truth.correspondences[k].iter().filter(|c| !c[0].is_nan()).count();
+            assert!(seen > object / 3, "{scene:?}: projector {k} sees {seen} of {object}");
+        }
+        // Deterioration changes some labels to clay, never more than a small part.
+        let changed = stage.pixels().iter().filter(|p| p.label != p.label_pristine).count();
+        assert!(changed > 0 && changed < object / 5, "{scene:?}: {changed} changed");
+    }
+}
