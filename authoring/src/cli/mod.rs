@@ -5,6 +5,7 @@ pub mod bundle;
 pub mod classify;
 pub mod compensate;
 pub mod demo;
+pub mod eval_restore;
 pub mod inspect;
 pub mod keygen;
 pub mod render;

@@ -2,6 +2,7 @@
 //! of one table, printed for people and as JSON for machines. One submodule per step.
 
 pub mod compensate;
+pub mod restore;
 
 use serde::Serialize;
 

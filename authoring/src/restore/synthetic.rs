@@ -22,7 +22,13 @@ pub fn damaged_pattern(w: u32, h: u32, feature_px: f64, seed: u64) -> DamagedPat
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let area = w as f64 * h as f64;
     let dots: Vec<(f64, f64, f64)> = (0..(area / (feature_px * feature_px * 8.0)) as usize)
-        .map(|_| (rng.gen_range(0.0..w as f64), rng.gen_range(0.0..h as f64), rng.gen_range(0.12..0.25) * feature_px))
+        .map(|_| {
+            (
+                rng.gen_range(0.0..w as f64),
+                rng.gen_range(0.0..h as f64),
+                rng.gen_range(0.12..0.25) * feature_px,
+            )
+        })
         .collect();
     let chips: Vec<(f64, f64, f64)> = (0..(area / 2000.0) as usize)
         .map(|_| (rng.gen_range(0.0..w as f64), rng.gen_range(0.0..h as f64), rng.gen_range(0.8..2.5)))
@@ -30,7 +36,7 @@ pub fn damaged_pattern(w: u32, h: u32, feature_px: f64, seed: u64) -> DamagedPat
     let stains: Vec<(f64, f64, f64)> = (0..(area / 4000.0) as usize)
         .map(|_| (rng.gen_range(0.0..w as f64), rng.gen_range(0.0..h as f64), rng.gen_range(0.6..1.8)))
         .collect();
-    let phase: f64 = rng.gen_range(0.0..6.28);
+    let phase: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
     // Spatial buckets so each pixel only looks at nearby dots, chips and stains.
     let cell = 64.0;
     let (bw, bh) = ((w as f64 / cell).ceil() as usize + 1, (h as f64 / cell).ceil() as usize + 1);
@@ -49,7 +55,9 @@ pub fn damaged_pattern(w: u32, h: u32, feature_px: f64, seed: u64) -> DamagedPat
     };
     let (dots, chips, stains) = (bucket(&dots), bucket(&chips), bucket(&stains));
     let inside = |b: &[Vec<(f64, f64, f64)>], x: f64, y: f64| {
-        b[(y / cell) as usize * bw + (x / cell) as usize].iter().any(|&(cx, cy, r)| (x - cx).hypot(y - cy) < r)
+        b[(y / cell) as usize * bw + (x / cell) as usize]
+            .iter()
+            .any(|&(cx, cy, r)| (x - cx).hypot(y - cy) < r)
     };
     let pristine_at = |x: f64, y: f64| -> u8 {
         if inside(&dots, x, y) {
