@@ -23,7 +23,8 @@ use crate::calibrate::radiometry::{
     ProjectorRadiometry, RadiometryError, ResponseBuilder, full_irradiance, gain_map,
 };
 use crate::calibrate::transport::{
-    self, Predictor, RefineStats, SnapContext, SnapParams, TransportError, TransportResult, noise_sigma,
+    self, DotSignal, Predictor, RefineStats, SnapContext, SnapParams, TransportError, TransportResult,
+    noise_sigma,
 };
 use crate::capture_set::{CaptureManifest, Pattern, ProjectorCapture};
 use crate::imgio::{ImageError, LinearImage};
@@ -131,7 +132,7 @@ pub fn measure_transport(
         lit: vec![],
         lit_min: 0.0,
     };
-    let sigma = noise_sigma(&black, &zero);
+    let sigma = noise_sigma(&DotSignal::from_linear(&black), &zero);
     let ctx = SnapContext::new(&black, &white, sigma, params);
     drop((black, white));
     let pred = Predictor::new(correspondence, cam_w, capture.width, capture.height);
@@ -139,7 +140,7 @@ pub fn measure_transport(
     let images = dots
         .par_iter()
         .map(|&(_, dx, dy, file)| {
-            let img = load(dir, file, cam_w, cam_h)?;
+            let img = DotSignal::load(&dir.join(file), cam_w, cam_h)?;
             let r = transport::snap_dot_image(&img, &ctx, &pred, spacing, (dx, dy), params);
             let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
             progress(&format!("projector {k}: dots"), n, dots.len());
@@ -181,7 +182,7 @@ pub fn measure_radiometry(
         lit: vec![],
         lit_min: 0.0,
     };
-    let min_lit = (10.0 * noise_sigma(&black, &zero) / 3.0f32.sqrt()).max(0.01);
+    let min_lit = (10.0 * noise_sigma(&DotSignal::from_linear(&black), &zero) / 3.0f32.sqrt()).max(0.01);
     let mut builder = ResponseBuilder::new(
         k,
         &black,
