@@ -142,6 +142,17 @@ pub struct EventRecord {
     pub detail: String,
 }
 
+/// One reservation (committed or standing).
+#[derive(Clone, Debug, Serialize)]
+pub struct ExposureRow {
+    pub kind: String,
+    pub label: String,
+    pub lux: f64,
+    pub start_ms: i64,
+    pub end_ms: i64,
+    pub committed: bool,
+}
+
 /// What `status` prints.
 #[derive(Clone, Debug, Serialize)]
 pub struct LedgerStatus {
@@ -389,6 +400,28 @@ impl Ledger {
             )
             .map_err(self.sql())?;
         Ok(lux_ms / MS_PER_HOUR)
+    }
+
+    /// Every exposure row of `object`, in order: for audits and tests.
+    pub fn exposure_rows(&self, object: &str) -> Result<Vec<ExposureRow>, LedgerError> {
+        self.conn
+            .prepare(
+                "SELECT kind, label, lux, start_ms, end_ms, committed FROM exposure WHERE object = ?1 ORDER BY id",
+            )
+            .and_then(|mut s| {
+                s.query_map([object], |r| {
+                    Ok(ExposureRow {
+                        kind: r.get(0)?,
+                        label: r.get(1)?,
+                        lux: r.get(2)?,
+                        start_ms: r.get(3)?,
+                        end_ms: r.get(4)?,
+                        committed: r.get::<_, i64>(5)? == 1,
+                    })
+                })?
+                .collect()
+            })
+            .map_err(self.sql())
     }
 
     /// Every lux-hour ever charged to `object`.

@@ -232,7 +232,8 @@ impl Player {
     /// standing (an over-count), so it is only logged.
     pub fn settle(&mut self, now: Now, acct: &mut dyn Accountant) {
         for id in self.pending_commits.drain(..) {
-            if let Err(e) = acct.commit(id, now.unix_ms) {
+            // One millisecond more: `unix_ms` is truncated, the light's true end is not.
+            if let Err(e) = acct.commit(id, now.unix_ms + 1) {
                 tracing::error!(?e, lease = id, "could not commit exposure; the reservation stands");
             }
         }

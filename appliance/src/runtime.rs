@@ -347,6 +347,12 @@ fn refs<'a>(show: &Show, frames: &'a [Vec<u8>]) -> Vec<FrameRef<'a>> {
         .collect()
 }
 
+/// Runs the appliance on a single-threaded tokio runtime until it stops.
+pub fn run_blocking(config: Config) -> Result<(), RunError> {
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build()?;
+    rt.block_on(run(config))
+}
+
 /// Runs the appliance until SIGTERM/SIGINT (or the development window closes).
 pub async fn run(config: Config) -> Result<(), RunError> {
     // A file-size limit (or quota) must give write errors, not kill the process with the
@@ -356,12 +362,12 @@ pub async fn run(config: Config) -> Result<(), RunError> {
     let mut int = signal(SignalKind::interrupt())?;
     let mut hup = signal(SignalKind::hangup())?;
 
+    // Outputs first, blanked: whatever fails next, the projectors are dark.
+    let (tx, mut rx) = mpsc::channel(input::CHANNEL_CAPACITY);
+    let output = open_output(&config, &tx)?;
     check_state_dir(&config.state_dir)?;
     let ledger = Ledger::open(&config.state_dir.join(LEDGER_FILE), config.ledger.utc_offset_minutes)?;
     ledger.integrity_check()?;
-
-    let (tx, mut rx) = mpsc::channel(input::CHANNEL_CAPACITY);
-    let output = open_output(&config, &tx)?;
     start_inputs(&config, &tx)?;
 
     let p = &config.player;

@@ -3,7 +3,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use restage_authoring::calibrate::transport::{
-    Predictor, SnapContext, SnapParams, snap_blob, snap_dot_image,
+    DotSignal, Predictor, SnapContext, SnapParams, snap_blob, snap_dot_image,
 };
 use restage_authoring::imgio::LinearImage;
 
@@ -18,7 +18,7 @@ fn cam_of(qx: u32, qy: u32) -> [f32; 2] {
     [10.3 + SCALE * qx as f32, 12.7 + SCALE * qy as f32]
 }
 
-fn scene(dx: u32, dy: u32) -> (LinearImage, SnapContext, Predictor) {
+fn scene(dx: u32, dy: u32) -> (DotSignal, SnapContext, Predictor) {
     let (w, h) = CAM;
     let mut img = LinearImage::new(w, h).unwrap();
     for qy in (dy..PROJ.1).step_by(SPACING as usize) {
@@ -40,7 +40,7 @@ fn scene(dx: u32, dy: u32) -> (LinearImage, SnapContext, Predictor) {
     let corr: Vec<[f32; 2]> =
         (0..w * h).map(|i| [((i % w) as f32 - 10.3) / SCALE, ((i / w) as f32 - 12.7) / SCALE]).collect();
     let pred = Predictor::new(&corr, w, PROJ.0, PROJ.1);
-    (img, ctx, pred)
+    (DotSignal::from_linear(&img), ctx, pred)
 }
 
 fn bench(c: &mut Criterion) {

@@ -14,6 +14,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Calibrate the stage: capture set in, stage model out, with a PNG report and a PLY model.
+    Calibrate(cli::calibrate::CalibrateArgs),
+    /// Decode structured light to correspondence maps (our captures or OpenCV's order).
+    Decode(cli::decode::DecodeArgs),
+    /// Compare a step's output with the virtual stage's ground truth (table and JSON).
+    Eval(cli::eval::EvalArgs),
     /// Simulate a built-in scene on the virtual stage and write its capture set.
     Simulate(cli::simulate::Args),
     /// Run the whole chain on the virtual stage (the README's first command).
@@ -47,6 +53,9 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Calibrate(args) => cli::calibrate::run(args),
+        Command::Decode(args) => cli::decode::run(args),
+        Command::Eval(args) => cli::eval::run(args),
         Command::Simulate(args) => cli::simulate::run(&args),
         Command::Demo(args) => cli::demo::run(&args),
         Command::Render(args) => cli::render::run(&args),

@@ -23,7 +23,8 @@ use crate::calibrate::radiometry::{
     ProjectorRadiometry, RadiometryError, ResponseBuilder, full_irradiance, gain_map,
 };
 use crate::calibrate::transport::{
-    self, Predictor, RefineStats, SnapContext, SnapParams, TransportError, TransportResult, noise_sigma,
+    self, DotSignal, Predictor, RefineStats, SnapContext, SnapParams, TransportError, TransportResult,
+    noise_sigma,
 };
 use crate::capture_set::{CaptureManifest, Pattern, ProjectorCapture};
 use crate::imgio::{ImageError, LinearImage};
@@ -131,7 +132,7 @@ pub fn measure_transport(
         lit: vec![],
         lit_min: 0.0,
     };
-    let sigma = noise_sigma(&black, &zero);
+    let sigma = noise_sigma(&DotSignal::from_linear(&black), &zero);
     let ctx = SnapContext::new(&black, &white, sigma, params);
     drop((black, white));
     let pred = Predictor::new(correspondence, cam_w, capture.width, capture.height);
@@ -139,7 +140,7 @@ pub fn measure_transport(
     let images = dots
         .par_iter()
         .map(|&(_, dx, dy, file)| {
-            let img = load(dir, file, cam_w, cam_h)?;
+            let img = DotSignal::load(&dir.join(file), cam_w, cam_h)?;
             let r = transport::snap_dot_image(&img, &ctx, &pred, spacing, (dx, dy), params);
             let n = done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
             progress(&format!("projector {k}: dots"), n, dots.len());
@@ -181,7 +182,7 @@ pub fn measure_radiometry(
         lit: vec![],
         lit_min: 0.0,
     };
-    let min_lit = (10.0 * noise_sigma(&black, &zero) / 3.0f32.sqrt()).max(0.01);
+    let min_lit = (10.0 * noise_sigma(&DotSignal::from_linear(&black), &zero) / 3.0f32.sqrt()).max(0.01);
     let mut builder = ResponseBuilder::new(
         k,
         &black,
@@ -619,5 +620,204 @@ impl PhotometricReport {
         let path = dir.join("photometric.json");
         std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("summary serialises"))
             .map_err(|e| ImageError::Write { path, source: image::ImageError::IoError(e) })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    use crate::capture_set::{CAPTURE_VERSION, CameraIntrinsics, Shot};
+
+    /// A flat, evenly lit scene: projector pixel q lands at camera `2 q + 3` with a small
+    /// Gaussian blob; gamma-2 response; white albedo 0.5, black 0.01, no noise.
+    fn write_capture(
+        dir: &Path,
+        spacing: u32,
+        levels: &[u8],
+        skip: &[&str],
+    ) -> (CaptureManifest, Vec<[f32; 2]>) {
+        let (cw, ch, pw, ph) = (72u32, 56u32, 34u32, 26u32);
+        let share = |q: [u32; 2], x: u32, y: u32| {
+            let (cx, cy) = (2.0 * q[0] as f32 + 3.0, 2.0 * q[1] as f32 + 3.0);
+            let d2 = (x as f32 - cx).powi(2) + (y as f32 - cy).powi(2);
+            (-d2 / (2.0 * 0.8f32.powi(2))).exp() * 4.0 / (2.0 * std::f32::consts::PI * 0.64)
+        };
+        let render = |on: &dyn Fn(u32, u32) -> Option<[f32; 3]>| {
+            let mut img = LinearImage::new(cw, ch).unwrap();
+            for y in 0..ch {
+                for x in 0..cw {
+                    let mut e = [0.0f32; 3];
+                    // The blob is negligible beyond 3 projector pixels.
+                    let (qx0, qy0) = ((x / 2).saturating_sub(4), (y / 2).saturating_sub(4));
+                    for qy in qy0..(qy0 + 8).min(ph) {
+                        for qx in qx0..(qx0 + 8).min(pw) {
+                            if let Some(out) = on(qx, qy) {
+                                let s = share([qx, qy], x, y);
+                                for c in 0..3 {
+                                    e[c] += s * out[c];
+                                }
+                            }
+                        }
+                    }
+                    img.set(x, y, e.map(|v| 0.01 + 0.5 * v));
+                }
+            }
+            img
+        };
+        std::fs::create_dir_all(dir.join("proj0")).unwrap();
+        let mut shots = Vec::new();
+        let mut add = |pattern: Pattern, name: String, img: LinearImage| {
+            if skip.contains(&name.as_str()) {
+                return;
+            }
+            let file = PathBuf::from(format!("proj0/{name}.png"));
+            img.save_linear16(&dir.join(&file)).unwrap();
+            shots.push(Shot { pattern, file });
+        };
+        add(Pattern::White, "white".into(), render(&|_, _| Some([1.0; 3])));
+        add(Pattern::Black, "black".into(), render(&|_, _| None));
+        for dy in 0..spacing {
+            for dx in 0..spacing {
+                let img = render(&|x, y| (x % spacing == dx && y % spacing == dy).then_some([1.0; 3]));
+                add(Pattern::Dots { spacing, dx, dy }, format!("dots_{dx:02}_{dy:02}"), img);
+            }
+        }
+        for channel in 0..3u8 {
+            for &level in levels {
+                let r = (level as f32 / 255.0).powi(2);
+                let mut out = [0.0; 3];
+                out[channel as usize] = r;
+                add(
+                    Pattern::Ramp { channel, level },
+                    format!("ramp_{channel}_{level:03}"),
+                    render(&|_, _| Some(out)),
+                );
+            }
+        }
+        let manifest = CaptureManifest {
+            version: CAPTURE_VERSION,
+            source: "test".into(),
+            camera: CameraIntrinsics { width: cw, height: ch, fx: 50.0, fy: 50.0, cx: 36.0, cy: 28.0 },
+            photo: "photo.png".into(),
+            projectors: vec![ProjectorCapture { index: 0, width: pw, height: ph, shots }],
+        };
+        let corr = (0..cw * ch)
+            .map(|i| {
+                let q = [((i % cw) as f32 - 3.0) / 2.0, ((i / cw) as f32 - 3.0) / 2.0];
+                if q[0] < -0.5 || q[1] < -0.5 || q[0] > pw as f32 - 0.5 || q[1] > ph as f32 - 0.5 {
+                    [f32::NAN; 2]
+                } else {
+                    // Decoding error of a quarter pixel that the dots should remove.
+                    [q[0] + 0.25, q[1] - 0.25]
+                }
+            })
+            .collect();
+        (manifest, corr)
+    }
+
+    #[test]
+    fn capture_files_give_transport_and_responses() {
+        let dir = tempfile::tempdir().unwrap();
+        let (m, corr) = write_capture(dir.path(), 6, &[64, 128, 192, 255], &[]);
+        let none = |_: &str, _: usize, _: usize| {};
+        let (res, refined, stats) = measure_transport(
+            dir.path(),
+            0,
+            &m.projectors[0],
+            (72, 56),
+            &corr,
+            &SnapParams::default(),
+            &none,
+        )
+        .unwrap();
+        assert!(res.dots.len() > 600, "{} dots", res.dots.len());
+        assert!(stats.refined > 2000, "{stats:?}");
+        let i = 30 * 72 + 31;
+        let want = [(31.0 - 3.0) / 2.0, (30.0 - 3.0) / 2.0];
+        assert!(
+            (refined[i][0] - want[0]).abs() < 0.03 && (refined[i][1] - want[1]).abs() < 0.03,
+            "{:?}",
+            refined[i]
+        );
+        let (rad, _) = measure_radiometry(dir.path(), 0, &m.projectors[0], (72, 56), &none).unwrap();
+        for c in 0..3 {
+            for v in [64usize, 100, 128, 192] {
+                let want = (v as f32 / 255.0).powi(2);
+                assert!(
+                    (rad.response[c][v] - want).abs() < 0.01,
+                    "channel {c} level {v}: {}",
+                    rad.response[c][v]
+                );
+            }
+        }
+        // The figures people look at.
+        let report = PhotometricReport {
+            transport: vec![TransportSummary {
+                footprint: transport::footprint_energy(&res.transport, 34, 26),
+                ..Default::default()
+            }],
+            radiometry: vec![rad],
+            ..Default::default()
+        };
+        report.save(&dir.path().join("report"), &[(34, 26)]).unwrap();
+        for f in ["response_proj0.png", "footprint_proj0.png", "photometric.json"] {
+            assert!(dir.path().join("report").join(f).exists(), "{f}");
+        }
+    }
+
+    #[test]
+    fn missing_images_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let none = |_: &str, _: usize, _: usize| {};
+        let (m, corr) = write_capture(dir.path(), 4, &[128, 255], &["white"]);
+        let e = measure_transport(
+            dir.path(),
+            0,
+            &m.projectors[0],
+            (72, 56),
+            &corr,
+            &SnapParams::default(),
+            &none,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("projector 0") && e.contains("white"), "{e}");
+        let dir = tempfile::tempdir().unwrap();
+        let (m, _) = write_capture(dir.path(), 4, &[128, 255], &[]);
+        let e = measure_radiometry(dir.path(), 0, &m.projectors[0], (72, 56), &none).unwrap_err().to_string();
+        assert!(e.contains("projector 0, channel 0") && e.contains("ramp levels"), "{e}");
+        // No correspondences at all: the geometry step has not run.
+        let e = measure_transport(
+            dir.path(),
+            0,
+            &m.projectors[0],
+            (72, 56),
+            &vec![[f32::NAN; 2]; 72 * 56],
+            &SnapParams::default(),
+            &none,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("geometry step"), "{e}");
+    }
+
+    #[test]
+    fn black_levels_and_stray_light_separate() {
+        // Two projectors lighting overlapping halves, a gain that varies per pixel.
+        let n = 400;
+        let gain: Vec<[f32; 3]> = (0..n).map(|i| [0.5 + 0.4 * ((i * 7 % 13) as f32 / 13.0); 3]).collect();
+        let l0: Vec<[f32; 3]> =
+            (0..n).map(|i| if i < 250 { gain[i].map(|g| g * 0.6) } else { [0.0; 3] }).collect();
+        let l1: Vec<[f32; 3]> = (0..n)
+            .map(|i| if i > 150 { gain[i].map(|g| g * (0.3 + i as f32 / 1000.0)) } else { [0.0; 3] })
+            .collect();
+        let black: Vec<[f32; 3]> = (0..n)
+            .map(|i| std::array::from_fn(|c| 0.004 * l0[i][c] + 0.006 * l1[i][c] + 0.002 * gain[i][c]))
+            .collect();
+        let (levels, stray) = fit_black(&black, &[&l0, &l1], &gain);
+        assert!((levels[0][0] - 0.004).abs() < 1e-5 && (levels[1][2] - 0.006).abs() < 1e-5, "{levels:?}");
+        assert!((stray[1] - 0.002).abs() < 1e-5, "{stray:?}");
     }
 }

@@ -13,7 +13,7 @@ use std::collections::HashMap;
 use rayon::prelude::*;
 use thiserror::Error;
 
-use crate::imgio::LinearImage;
+use crate::imgio::{ImageError, LinearImage};
 use crate::stage_model::Transport;
 
 /// A camera value at or above this (in any channel) counts as saturated.
@@ -164,11 +164,62 @@ impl SnapContext {
     }
 }
 
+/// A camera image reduced to what snapping reads: per pixel the sum of the three channels and
+/// whether any channel is saturated (a third of the memory of a [`LinearImage`]).
+#[derive(Clone, Debug)]
+pub struct DotSignal {
+    pub width: u32,
+    pub height: u32,
+    pub sum: Vec<f32>,
+    pub saturated: Vec<bool>,
+}
+
+impl DotSignal {
+    pub fn from_linear(img: &LinearImage) -> Self {
+        Self {
+            width: img.width,
+            height: img.height,
+            sum: img.data.iter().map(|p| p[0] + p[1] + p[2]).collect(),
+            saturated: img.data.iter().map(|p| p.iter().any(|&c| c >= SATURATED)).collect(),
+        }
+    }
+
+    /// Reads a camera image of `width x height`; 16-bit RGB PNGs (our captures) are reduced
+    /// straight from the decoded samples, anything else goes through [`LinearImage::load`].
+    pub fn load(path: &std::path::Path, width: u32, height: u32) -> Result<Self, ImageError> {
+        let img = image::open(path).map_err(|source| ImageError::Read { path: path.into(), source })?;
+        if img.width() != width || img.height() != height {
+            return Err(ImageError::Size {
+                path: path.into(),
+                got_w: img.width(),
+                got_h: img.height(),
+                want_w: width,
+                want_h: height,
+            });
+        }
+        match img {
+            image::DynamicImage::ImageRgb16(buf) => {
+                let raw = buf.as_raw();
+                let sat = (SATURATED * 65535.0).ceil() as u16;
+                Ok(Self {
+                    width,
+                    height,
+                    sum: raw
+                        .chunks_exact(3)
+                        .map(|p| (p[0] as u32 + p[1] as u32 + p[2] as u32) as f32 / 65535.0)
+                        .collect(),
+                    saturated: raw.chunks_exact(3).map(|p| p[0].max(p[1]).max(p[2]) >= sat).collect(),
+                })
+            }
+            _ => Ok(Self::from_linear(&LinearImage::load_sized(path, width, height)?)),
+        }
+    }
+}
+
 /// Noise standard deviation of a (mostly dark) dot image against black, channel sums, from
 /// the median absolute deviation of a strided sample (robust to the few bright dots).
-pub fn noise_sigma(image: &LinearImage, ctx: &SnapContext) -> f32 {
-    let mut sample: Vec<f32> =
-        image.data.iter().zip(&ctx.black).step_by(7).map(|(p, b)| p[0] + p[1] + p[2] - b).collect();
+pub fn noise_sigma(image: &DotSignal, ctx: &SnapContext) -> f32 {
+    let mut sample: Vec<f32> = image.sum.iter().zip(&ctx.black).step_by(7).map(|(p, b)| p - b).collect();
     if sample.is_empty() {
         return 0.0;
     }
@@ -185,7 +236,7 @@ pub fn noise_sigma(image: &LinearImage, ctx: &SnapContext) -> f32 {
 /// and returns its weighted centre and footprint. `detect` is the smallest accepted peak
 /// (channel sum above black).
 pub fn snap_blob(
-    image: &LinearImage,
+    image: &DotSignal,
     ctx: &SnapContext,
     guess: [f32; 2],
     radius: u32,
@@ -196,8 +247,7 @@ pub fn snap_blob(
     let r = radius as i64;
     let signal = |x: i64, y: i64| -> f32 {
         let i = (y * w + x) as usize;
-        let p = image.data[i];
-        p[0] + p[1] + p[2] - ctx.black[i]
+        image.sum[i] - ctx.black[i]
     };
     let (gx, gy) = (guess[0].round() as i64, guess[1].round() as i64);
     let mut best = (f32::NEG_INFINITY, 0i64, 0i64);
@@ -223,7 +273,7 @@ pub fn snap_blob(
     let mut saturated = false;
     while let Some((x, y)) = stack.pop() {
         let i = (y * w + x) as usize;
-        if image.data[i].iter().any(|&c| c >= SATURATED) {
+        if image.saturated[i] {
             saturated = true;
         }
         let lit = ctx.lit[i];
@@ -304,7 +354,7 @@ fn search_radius(pred: &Predictor, qx: u32, qy: u32, here: [f32; 2], spacing: u3
 
 /// Snaps every dot of one dot image (`spacing`, shift `dx`, `dy`).
 pub fn snap_dot_image(
-    image: &LinearImage,
+    image: &DotSignal,
     ctx: &SnapContext,
     pred: &Predictor,
     spacing: u32,
@@ -786,7 +836,8 @@ mod tests {
         for dy in 0..spacing {
             for dx in 0..spacing {
                 let img = synth.render(|x, y| x % spacing == dx && y % spacing == dy, &mut rng, 0.5);
-                let r = snap_dot_image(&img, &ctx, &pred, spacing, (dx, dy), &params);
+                let r =
+                    snap_dot_image(&DotSignal::from_linear(&img), &ctx, &pred, spacing, (dx, dy), &params);
                 images.push((format!("dots_{dx}_{dy}.png"), r));
             }
         }
@@ -860,7 +911,7 @@ mod tests {
         let ctx = SnapContext::new(&black, &white, synth.noise, &params);
         let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
         let img = synth.render(|x, y| x % 8 == 3 && y % 8 == 3, &mut rng, 0.5);
-        let r = snap_dot_image(&img, &ctx, &pred, 8, (3, 3), &params);
+        let r = snap_dot_image(&DotSignal::from_linear(&img), &ctx, &pred, 8, (3, 3), &params);
         assert!(r.off_object > 0 && !r.blobs.is_empty(), "{r:?}");
         assert_eq!(r.off_object + r.predicted(), (6 * 5) as usize);
     }
@@ -878,8 +929,14 @@ mod tests {
         let bright = synth.render(|x, y| x % 8 == 0 && y % 8 == 0, &mut rng, 8.0);
         let dark = synth.render(|_, _| false, &mut rng, 0.5);
         let images = vec![
-            ("proj0/dots_0_0.png".to_string(), snap_dot_image(&bright, &ctx, &pred, 8, (0, 0), &params)),
-            ("proj0/dots_1_0.png".to_string(), snap_dot_image(&dark, &ctx, &pred, 8, (1, 0), &params)),
+            (
+                "proj0/dots_0_0.png".to_string(),
+                snap_dot_image(&DotSignal::from_linear(&bright), &ctx, &pred, 8, (0, 0), &params),
+            ),
+            (
+                "proj0/dots_1_0.png".to_string(),
+                snap_dot_image(&DotSignal::from_linear(&dark), &ctx, &pred, 8, (1, 0), &params),
+            ),
         ];
         let res = assemble(0, synth.proj_w, synth.proj_h, 8, images).unwrap();
         let all = res.warnings.join("\n");

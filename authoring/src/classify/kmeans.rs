@@ -66,20 +66,27 @@ pub struct KMeansResult {
 
 /// Runs Lloyd's algorithm from `init` centroids. `labels` holds one entry per pixel: pixels
 /// labelled [`MASKED`] on entry are skipped and stay masked; all others get a cluster index.
+///
+/// Cluster sums are accumulated in full on the first pass and then updated only by the pixels
+/// that change cluster, so later passes cost little more than the distance computations.
 pub fn lloyd(features: &Features, init: &[[f32; 3]], labels: &mut [u8], max_iterations: u32) -> KMeansResult {
     assert!(!init.is_empty() && init.len() < MASKED as usize, "1..255 clusters");
     assert_eq!(labels.len(), features.len());
     let k = init.len();
     let mut centroids = init.to_vec();
-    let mut counts = vec![0u64; k];
+    let mut sums = vec![[0f64; 4]; k];
     let mut iterations = 0;
     let mut converged = false;
     while iterations < max_iterations {
         iterations += 1;
-        let (changed, sums) = assign(features, &centroids, labels, iterations == 1);
-        counts = sums.iter().map(|s| s[3] as u64).collect();
+        let (changed, delta) = assign(features, &centroids, labels, iterations == 1);
+        for (s, d) in sums.iter_mut().zip(&delta) {
+            for j in 0..4 {
+                s[j] += d[j];
+            }
+        }
         for (c, s) in centroids.iter_mut().zip(&sums) {
-            if s[3] > 0.0 {
+            if s[3] > 0.5 {
                 *c = [0, 1, 2].map(|j| (s[j] / s[3]) as f32);
             }
         }
@@ -88,65 +95,120 @@ pub fn lloyd(features: &Features, init: &[[f32; 3]], labels: &mut [u8], max_iter
             break;
         }
     }
+    let counts = sums.iter().map(|s| s[3].round() as u64).collect();
     KMeansResult { centroids, counts, iterations, converged }
 }
 
-/// Assigns every unmasked pixel to its nearest centroid; returns how many labels changed
-/// (all of them when `first`) and per-cluster `[sum0, sum1, sum2, count]`.
+/// Assigns every unmasked pixel to its nearest centroid. Returns how many labels changed and
+/// the change of the per-cluster `[sum0, sum1, sum2, count]`: on the `first` pass every pixel
+/// counts as newly assigned (its old label is ignored).
 fn assign(
     features: &Features,
     centroids: &[[f32; 3]],
     labels: &mut [u8],
     first: bool,
 ) -> (u64, Vec<[f64; 4]>) {
-    let k = centroids.len();
-    // argmin |f - c|^2 = argmin (|c|^2 - 2 f.c): three multiply-adds per cluster.
-    let cc: Vec<f32> = centroids.iter().map(|c| c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).collect();
+    match centroids.len() {
+        2 => assign_k::<2>(features, centroids, labels, first),
+        3 => assign_k::<3>(features, centroids, labels, first),
+        4 => assign_k::<4>(features, centroids, labels, first),
+        5 => assign_k::<5>(features, centroids, labels, first),
+        6 => assign_k::<6>(features, centroids, labels, first),
+        7 => assign_k::<7>(features, centroids, labels, first),
+        8 => assign_k::<8>(features, centroids, labels, first),
+        _ => assign_dyn(features, centroids, labels, first),
+    }
+}
+
+/// The nearest centroid: argmin |f - c|^2 = argmin (|c|^2 - 2 f.c), three multiply-adds per
+/// cluster; ties go to the lower index.
+#[inline(always)]
+fn nearest(f: [f32; 3], cc: &[f32], c2: &[[f32; 3]]) -> u8 {
+    let mut best = 0u8;
+    let mut best_d = cc[0] + f[0] * c2[0][0] + f[1] * c2[0][1] + f[2] * c2[0][2];
+    for j in 1..cc.len() {
+        let d = cc[j] + f[0] * c2[j][0] + f[1] * c2[j][1] + f[2] * c2[j][2];
+        if d < best_d {
+            best_d = d;
+            best = j as u8;
+        }
+    }
+    best
+}
+
+/// [`assign`] with the cluster count known at compile time (the loops unroll).
+fn assign_k<const K: usize>(
+    features: &Features,
+    centroids: &[[f32; 3]],
+    labels: &mut [u8],
+    first: bool,
+) -> (u64, Vec<[f64; 4]>) {
+    let cc: [f32; K] = std::array::from_fn(|j| centroids[j].iter().map(|v| v * v).sum());
+    let c2: [[f32; 3]; K] = std::array::from_fn(|j| centroids[j].map(|v| -2.0 * v));
+    assign_with(features, labels, first, K, |f| nearest(f, &cc, &c2))
+}
+
+fn assign_dyn(
+    features: &Features,
+    centroids: &[[f32; 3]],
+    labels: &mut [u8],
+    first: bool,
+) -> (u64, Vec<[f64; 4]>) {
+    let cc: Vec<f32> = centroids.iter().map(|c| c.iter().map(|v| v * v).sum()).collect();
     let c2: Vec<[f32; 3]> = centroids.iter().map(|c| c.map(|v| -2.0 * v)).collect();
+    assign_with(features, labels, first, centroids.len(), |f| nearest(f, &cc, &c2))
+}
+
+#[inline(always)]
+fn assign_with(
+    features: &Features,
+    labels: &mut [u8],
+    first: bool,
+    k: usize,
+    nearest: impl Fn([f32; 3]) -> u8 + Sync,
+) -> (u64, Vec<[f64; 4]>) {
     let partials: Vec<(u64, Vec<[f64; 4]>)> = labels
         .par_chunks_mut(CHUNK)
         .zip(features.c[0].par_chunks(CHUNK))
         .zip(features.c[1].par_chunks(CHUNK))
         .zip(features.c[2].par_chunks(CHUNK))
         .map(|(((lab, f0), f1), f2)| {
-            // f32 sums inside a chunk would lose precision on 32k pixels; f64 is cheap here.
-            let mut sums = vec![[0f64; 4]; k];
+            let mut delta = vec![[0f64; 4]; k];
             let mut changed = 0u64;
             for i in 0..lab.len() {
                 let old = lab[i];
                 if old == MASKED {
                     continue;
                 }
-                let (a, b, d) = (f0[i], f1[i], f2[i]);
-                let mut best = 0usize;
-                let mut best_d = f32::INFINITY;
-                for j in 0..k {
-                    let dist = cc[j] + a * c2[j][0] + b * c2[j][1] + d * c2[j][2];
-                    if dist < best_d {
-                        best_d = dist;
-                        best = j;
+                let f = [f0[i], f1[i], f2[i]];
+                let new = nearest(f);
+                if first || new != old {
+                    changed += 1;
+                    lab[i] = new;
+                    let d = &mut delta[new as usize];
+                    d[0] += f[0] as f64;
+                    d[1] += f[1] as f64;
+                    d[2] += f[2] as f64;
+                    d[3] += 1.0;
+                    if !first {
+                        let d = &mut delta[old as usize];
+                        d[0] -= f[0] as f64;
+                        d[1] -= f[1] as f64;
+                        d[2] -= f[2] as f64;
+                        d[3] -= 1.0;
                     }
                 }
-                let s = &mut sums[best];
-                s[0] += a as f64;
-                s[1] += b as f64;
-                s[2] += d as f64;
-                s[3] += 1.0;
-                if first || old != best as u8 {
-                    changed += 1;
-                }
-                lab[i] = best as u8;
             }
-            (changed, sums)
+            (changed, delta)
         })
         .collect();
     let mut total = vec![[0f64; 4]; k];
     let mut changed = 0;
-    for (c, sums) in partials {
+    for (c, delta) in partials {
         changed += c;
-        for (t, s) in total.iter_mut().zip(&sums) {
+        for (t, d) in total.iter_mut().zip(&delta) {
             for j in 0..4 {
-                t[j] += s[j];
+                t[j] += d[j];
             }
         }
     }
@@ -193,7 +255,7 @@ mod tests {
         #[test]
         fn matches_the_plain_reference_and_is_deterministic(
             pts in proptest::collection::vec((0i32..40, 0i32..40, 0i32..40), 20..200),
-            k in 2usize..5,
+            k in 2usize..10,
         ) {
             // Integer-valued features keep f32 and f64 distances exact, so ties break alike.
             let features = Features { c: [0, 1, 2].map(|j| pts.iter().map(|p| [p.0, p.1, p.2][j] as f32 * 0.25).collect()) };

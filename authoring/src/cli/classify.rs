@@ -23,8 +23,9 @@ pub struct ClassifyArgs {
     /// Object mask: 8-bit PNG of the photo's size, non-zero = object. Other pixels get label 255.
     #[arg(long)]
     pub mask: Option<PathBuf>,
-    /// Cap on k-means iterations.
-    #[arg(long, default_value_t = 50)]
+    /// Cap on k-means iterations; 1 = nearest calibrated representative (measured best on
+    /// the virtual stage), 50 = Lloyd's k-means to convergence as in the paper.
+    #[arg(long, default_value_t = 1)]
     pub max_iterations: u32,
 }
 
@@ -49,7 +50,11 @@ impl std::fmt::Display for ClassifySummary {
             self.weights[1],
             self.weights[2],
             self.iterations,
-            if self.converged { "" } else { " (not converged)" },
+            match (self.converged, self.iterations) {
+                (true, _) => "",
+                (false, 1) => " (one assignment pass)",
+                (false, _) => " (not converged)",
+            },
             self.compute.as_secs_f64()
         )
     }
@@ -114,4 +119,35 @@ pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> {
         bail!("mask {} is {}x{}, the photo is {width}x{height}", path.display(), img.width(), img.height());
     }
     Ok(img.pixels().map(|p| p.0[0] != 0).collect())
+}
+
+/// The demo's stand-in for the conservator: picks (a handful of pixels per colour, seeded)
+/// and the object mask, derived from the virtual stage's ground truth in `capture_dir`, written
+/// as `picks.json` and `mask.png` into `out`. Returns their paths.
+pub fn picks_from_ground_truth(capture_dir: &Path, out: &Path, seed: u64) -> Result<(PathBuf, PathBuf)> {
+    use restage_authoring::eval::classify::{PICKS_PER_CLASS, capture_case};
+    let case = capture_case(capture_dir)
+        .with_context(|| format!("reading ground truth of {}", capture_dir.display()))?;
+    let hist = case.truth.histogram(case.names.len());
+    let present: Vec<usize> = (0..case.names.len()).filter(|&c| hist[c] > 0).collect();
+    let mut dense = case.truth.clone();
+    for l in dense.data.iter_mut() {
+        if let Some(d) = present.iter().position(|&c| c == *l as usize) {
+            *l = d as u8;
+        }
+    }
+    let names: Vec<String> = present.iter().map(|&c| case.names[c].clone()).collect();
+    let display: Vec<Option<[u8; 3]>> = present.iter().map(|&c| case.display[c]).collect();
+    let picks = classify::picks_from_labels(&dense, &names, &display, PICKS_PER_CLASS, seed)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let picks_path = out.join("picks.json");
+    picks.save(&picks_path)?;
+    let mask: Vec<u8> =
+        case.truth.data.iter().map(|&l| if l == classify::MASKED { 0 } else { 255 }).collect();
+    let mask_path = out.join("mask.png");
+    image::GrayImage::from_raw(case.truth.width, case.truth.height, mask)
+        .expect("one byte per pixel")
+        .save(&mask_path)
+        .with_context(|| format!("writing {}", mask_path.display()))?;
+    Ok((picks_path, mask_path))
 }

@@ -52,6 +52,34 @@ pub fn run(args: &Args) -> Result<()> {
     write_contact_sheet(&manifest, &capture_dir, &sheet)?;
     tracing::info!("step 1 (simulate) done at {:.1} s: {}", start.elapsed().as_secs_f64(), sheet.display());
 
+    // Step 2: calibrate the stage's geometry. The one length a conservator measures with a tape
+    // (camera lens to projector 0's lens) comes from the simulated setup.
+    let setup = restage_authoring::stage_sim::Setup::from_config(&scene)?;
+    let baseline_mm = setup.projectors[0].centre.norm();
+    let stage_dir = args.out.join("stage");
+    let known =
+        restage_authoring::calibrate::selfcal::KnownLength::Baseline { projector: 0, mm: baseline_mm };
+    let report = crate::cli::calibrate::calibrate(&capture_dir, &stage_dir, known, None)?;
+    tracing::info!(
+        "step 2 (calibrate) done at {:.1} s: {} points, reprojection RMS {:.3} px, {}",
+        start.elapsed().as_secs_f64(),
+        report.points,
+        report.dense_rms_px,
+        stage_dir.join("report.png").display()
+    );
+
+    // Step 3: colour classification, with picks the virtual stage derives from its ground truth.
+    let classify_dir = args.out.join("classify");
+    let (picks, mask) = super::classify::picks_from_ground_truth(&capture_dir, &classify_dir, args.seed)?;
+    let summary = super::classify::classify_files(
+        &capture_dir.join(&manifest.photo),
+        &picks,
+        Some(&mask),
+        &classify_dir,
+        1,
+    )?;
+    tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());
+
     tracing::info!(
         "demo finished in {:.1} s; results in {}",
         start.elapsed().as_secs_f64(),

@@ -2,9 +2,12 @@
 //! library's steps. One file per command.
 
 pub mod bundle;
+pub mod calibrate;
 pub mod classify;
 pub mod compensate;
+pub mod decode;
 pub mod demo;
+pub mod eval;
 pub mod eval_restore;
 pub mod inspect;
 pub mod keygen;
@@ -20,4 +23,16 @@ pub fn now_unix_s() -> anyhow::Result<i64> {
         .duration_since(std::time::UNIX_EPOCH)
         .context("the system clock is before 1970")?
         .as_secs() as i64)
+}
+
+/// A progress bar on stderr for `len` steps of a long command.
+pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
 }

@@ -1,7 +1,9 @@
 //! Evaluation against the virtual stage's ground truth: every step reports figures as rows
 //! of one table, printed for people and as JSON for machines. One submodule per step.
 
+pub mod classify;
 pub mod compensate;
+pub mod geometry;
 pub mod restore;
 
 use serde::Serialize;

@@ -154,15 +154,19 @@ impl<R: Read + Seek> BundleReader<R> {
             return Err(BundleError::ReservedFlags { flags });
         }
         let manifest_len = u64_at(16);
-        if manifest_len > limits.max_manifest || manifest_len == 0 {
+        if manifest_len > limits.max_manifest {
             return Err(BundleError::ManifestTooLarge { len: manifest_len, max: limits.max_manifest });
+        }
+        if manifest_len == 0 {
+            return Err(BundleError::ManifestDecode("the manifest is empty".into()));
         }
         let sig_len = u64_at(24);
         if sig_len != SIGNATURE_BLOCK_LEN {
             return Err(BundleError::SignatureLength { len: sig_len });
         }
-        // Both lengths are capped, so this cannot overflow.
-        let signed_end = HEADER_LEN + manifest_len + SIGNATURE_BLOCK_LEN;
+        let signed_end = (HEADER_LEN + SIGNATURE_BLOCK_LEN)
+            .checked_add(manifest_len)
+            .ok_or(BundleError::ManifestTooLarge { len: manifest_len, max: limits.max_manifest })?;
         if file_len < signed_end {
             return Err(BundleError::Truncated {
                 what: "the manifest and signature".into(),

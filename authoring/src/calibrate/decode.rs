@@ -1,0 +1,880 @@
+//! Structured-light decoding: camera images of Gray-code (with inverses) and phase-shift
+//! patterns to a per-camera-pixel projector coordinate, with a validity mask and a quality
+//! report instead of failure on noisy pixels.
+//!
+//! Conventions are those documented on [`Pattern`]. Captures from OpenCV's
+//! `structured_light.GrayCodePattern` (pattern/inverse pairs, MSB first, columns then rows, then
+//! white and black) are mapped onto the same patterns by [`opencv_order`].
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::CalibrateError;
+use crate::capture_set::{Axis, Pattern, ProjectorCapture, Shot, gray_bits};
+
+/// Thresholds of the decoder. Values are in image units (0..1 of the camera's full scale).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DecodeParams {
+    /// A pixel is lit (decodable) when white minus black exceeds this.
+    pub min_contrast: f32,
+    /// A Gray bit is weak when |pattern - inverse| is below
+    /// `max(min_bit_margin, min_bit_margin_rel * (white - black))`.
+    pub min_bit_margin: f32,
+    pub min_bit_margin_rel: f32,
+    /// Pixels with more weak bits than this are not decoded. One weak bit is what a pixel on a
+    /// stripe boundary has (only one Gray bit changes between neighbouring codes), and reading it
+    /// either way gives one of the two neighbouring codes; more weak bits mean noise.
+    pub max_weak_bits: u32,
+    /// After phase unwrapping, pixels whose phase coordinate is further than this (projector px)
+    /// from the Gray-code cell are rejected as inconsistent.
+    pub max_phase_gray_disagreement: f32,
+    /// Use phase-shift images when the capture has them.
+    pub use_phase: bool,
+}
+
+impl Default for DecodeParams {
+    fn default() -> Self {
+        Self {
+            min_contrast: 0.01,
+            min_bit_margin: 0.002,
+            min_bit_margin_rel: 0.03,
+            max_weak_bits: 1,
+            max_phase_gray_disagreement: 1.5,
+            use_phase: true,
+        }
+    }
+}
+
+impl DecodeParams {
+    /// OpenCV `GrayCodePattern`'s default thresholds (black 40, white 5 on 8-bit images), for
+    /// captures stored as 8-bit code values.
+    pub fn opencv_defaults() -> Self {
+        Self {
+            min_contrast: 40.0 / 255.0,
+            min_bit_margin: 5.0 / 255.0,
+            min_bit_margin_rel: 0.0,
+            ..Self::default()
+        }
+    }
+}
+
+/// How well one projector decoded.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct DecodeQuality {
+    pub projector: u32,
+    pub pixels: usize,
+    /// Pixels with enough white/black contrast.
+    pub lit: usize,
+    /// Pixels with both coordinates decoded.
+    pub decoded: usize,
+    /// Lit pixels rejected for too many weak Gray bits.
+    pub weak: usize,
+    /// Lit pixels whose code lies outside the projector image.
+    pub out_of_range: usize,
+    /// Lit pixels whose phase disagreed with the Gray code.
+    pub phase_rejected: usize,
+    /// Decoded pixels that had one weak bit (stripe boundaries).
+    pub one_weak_bit: usize,
+    /// Phase steps used per axis (0 when Gray code only).
+    pub phase_steps: u32,
+    pub phase_period: u32,
+    /// Whether phase images were linearised with a response measured from gray ramps.
+    pub linearised: bool,
+    /// Median over decoded pixels of the smallest bit margin relative to white - black.
+    pub median_relative_margin: f32,
+    pub warnings: Vec<String>,
+}
+
+/// Decoded correspondences of one projector: for every camera pixel (row-major) the projector
+/// coordinate seen there (pixel-centre convention), NaN where not decoded.
+#[derive(Clone, Debug)]
+pub struct ProjectorDecode {
+    pub width: u32,
+    pub height: u32,
+    pub x: Vec<f32>,
+    pub y: Vec<f32>,
+    /// White minus black per pixel (how strongly this projector lights it).
+    pub contrast: Vec<f32>,
+    /// Grey response (256 entries, 0 at input 0, 1 at 255) measured from gray ramps, if any.
+    pub response: Option<Vec<f32>>,
+    pub quality: DecodeQuality,
+}
+
+impl ProjectorDecode {
+    pub fn is_valid(&self, i: usize) -> bool {
+        self.x[i].is_finite() && self.y[i].is_finite()
+    }
+
+    /// Correspondences as the stage model stores them.
+    pub fn pairs(&self) -> Vec<[f32; 2]> {
+        self.x
+            .iter()
+            .zip(&self.y)
+            .map(|(&x, &y)| if x.is_finite() && y.is_finite() { [x, y] } else { [f32::NAN; 2] })
+            .collect()
+    }
+}
+
+/// Where pattern images come from: files of a capture set, or memory in tests.
+pub trait PatternImages {
+    /// Camera size every image must have.
+    fn size(&self) -> (u32, u32);
+    /// The grey (single-channel, row-major) camera image of `pattern`, or `None` if not captured.
+    fn grey(&self, pattern: &Pattern) -> Result<Option<Vec<f32>>, CalibrateError>;
+    /// Patterns present, to discover phase and ramp sequences.
+    fn patterns(&self) -> Vec<Pattern>;
+}
+
+/// Pattern images of one projector read from a capture directory.
+pub struct CaptureImages<'a> {
+    pub dir: &'a Path,
+    pub projector: &'a ProjectorCapture,
+    pub width: u32,
+    pub height: u32,
+    /// Read 8-bit files as raw code values (foreign captures) instead of decoding sRGB.
+    pub raw: bool,
+}
+
+impl PatternImages for CaptureImages<'_> {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn grey(&self, pattern: &Pattern) -> Result<Option<Vec<f32>>, CalibrateError> {
+        match self.projector.find(pattern) {
+            None => Ok(None),
+            Some(file) => load_grey(&self.dir.join(file), self.width, self.height, self.raw).map(Some),
+        }
+    }
+
+    fn patterns(&self) -> Vec<Pattern> {
+        self.projector.shots.iter().map(|s| s.pattern.clone()).collect()
+    }
+}
+
+/// Loads an image as grey: 16-bit files are linear light (mean of channels); 8-bit files are
+/// decoded from sRGB, or taken as raw code values / 255 when `raw`.
+pub fn load_grey(path: &Path, width: u32, height: u32, raw: bool) -> Result<Vec<f32>, CalibrateError> {
+    use crate::imgio::ImageError;
+    let img = image::open(path).map_err(|source| ImageError::Read { path: path.into(), source })?;
+    if img.width() != width || img.height() != height {
+        return Err(ImageError::Size {
+            path: path.into(),
+            got_w: img.width(),
+            got_h: img.height(),
+            want_w: width,
+            want_h: height,
+        }
+        .into());
+    }
+    let is16 = matches!(
+        img.color(),
+        image::ColorType::L16 | image::ColorType::La16 | image::ColorType::Rgb16 | image::ColorType::Rgba16
+    );
+    Ok(if is16 {
+        img.to_rgb16()
+            .pixels()
+            .map(|p| p.0.iter().map(|&c| c as f32).sum::<f32>() / (3.0 * 65535.0))
+            .collect()
+    } else if raw {
+        img.to_rgb8().pixels().map(|p| p.0.iter().map(|&c| c as f32).sum::<f32>() / (3.0 * 255.0)).collect()
+    } else {
+        img.to_rgb8()
+            .pixels()
+            .map(|p| p.0.iter().map(|&c| crate::imgio::srgb_to_linear(c as f32 / 255.0)).sum::<f32>() / 3.0)
+            .collect()
+    })
+}
+
+/// Shots of a capture made in OpenCV `GrayCodePattern` order: `2 * ceil(log2 w)` column
+/// images, `2 * ceil(log2 h)` row images (each bit: pattern then inverse, most significant bit
+/// first), then white and black. `files` must be in that order.
+pub fn opencv_order(
+    files: &[PathBuf],
+    projector_width: u32,
+    projector_height: u32,
+) -> Result<ProjectorCapture, CalibrateError> {
+    let (nx, ny) = (gray_bits(projector_width), gray_bits(projector_height));
+    let want = 2 * (nx + ny) as usize + 2;
+    if files.len() != want {
+        return Err(CalibrateError::BadInput {
+            path: files.first().and_then(|f| f.parent()).map(Path::to_path_buf).unwrap_or_default(),
+            problem: format!(
+                "{} images for a {projector_width}x{projector_height} projector in OpenCV GrayCodePattern \
+                 order (expected exactly {want}: 2x{nx} columns, 2x{ny} rows, white, black)",
+                files.len()
+            ),
+        });
+    }
+    let mut shots = Vec::with_capacity(want);
+    let mut it = files.iter();
+    for (axis, n) in [(Axis::X, nx), (Axis::Y, ny)] {
+        for bit in 0..n {
+            for inverted in [false, true] {
+                let file = it.next().expect("counted").clone();
+                shots.push(Shot { pattern: Pattern::GrayCode { axis, bit, inverted }, file });
+            }
+        }
+    }
+    shots.push(Shot { pattern: Pattern::White, file: it.next().expect("counted").clone() });
+    shots.push(Shot { pattern: Pattern::Black, file: it.next().expect("counted").clone() });
+    Ok(ProjectorCapture { index: 0, width: projector_width, height: projector_height, shots })
+}
+
+/// Converts a Gray code to its binary value.
+pub fn gray_to_binary(mut g: u32) -> u32 {
+    let mut shift = 1;
+    while shift < 32 {
+        g ^= g >> shift;
+        shift <<= 1;
+    }
+    g
+}
+
+/// The 8-bit value projector coordinate `c` has in `pattern` (for rendering patterns in tests
+/// and by the virtual stage; follows the conventions on [`Pattern`]).
+pub fn pattern_value(pattern: &Pattern, x: u32, y: u32, width: u32, height: u32) -> u8 {
+    match *pattern {
+        Pattern::White => 255,
+        Pattern::Black => 0,
+        Pattern::GrayCode { axis, bit, inverted } => {
+            let (c, extent) = if axis == Axis::X { (x, width) } else { (y, height) };
+            let n = gray_bits(extent);
+            let g = c ^ (c >> 1);
+            let on = (g >> (n - 1 - bit)) & 1 == 1;
+            if on != inverted { 255 } else { 0 }
+        }
+        Pattern::Phase { axis, period, step, steps } => {
+            let c = if axis == Axis::X { x } else { y } as f64;
+            let v = 0.5
+                + 0.5
+                    * (std::f64::consts::TAU * c / period as f64
+                        - std::f64::consts::TAU * step as f64 / steps as f64)
+                        .cos();
+            (v * 255.0).round() as u8
+        }
+        Pattern::Dots { spacing, dx, dy } => {
+            if x % spacing == dx && y % spacing == dy {
+                255
+            } else {
+                0
+            }
+        }
+        Pattern::Ramp { level, .. } => level,
+    }
+}
+
+/// The phase sequence used for an axis: the finest period with all its steps captured.
+fn phase_sequence(patterns: &[Pattern], axis: Axis) -> Option<(u32, u32)> {
+    let mut best: Option<(u32, u32)> = None;
+    for p in patterns {
+        if let Pattern::Phase { axis: a, period, steps, .. } = *p {
+            if a != axis || steps < 3 {
+                continue;
+            }
+            let complete =
+                (0..steps).all(|s| patterns.contains(&Pattern::Phase { axis, period, step: s, steps }));
+            if complete && best.is_none_or(|(bp, _)| period < bp) {
+                best = Some((period, steps));
+            }
+        }
+    }
+    best
+}
+
+/// Measures the projector's grey response (relative light per 8-bit input) from gray-ramp
+/// shots, if the capture has any: all-channel ramps, or r, g and b ramps at the same levels
+/// (light adds in linear light: all three on = r + g + b - 2 black). Returns 256 entries,
+/// monotonic, 0 at input 0 and 1 at 255.
+fn measure_response(
+    images: &dyn PatternImages,
+    white: &[f32],
+    black: &[f32],
+    lit: &[bool],
+) -> Result<Option<Vec<f32>>, CalibrateError> {
+    let patterns = images.patterns();
+    let mut levels: Vec<u8> = patterns
+        .iter()
+        .filter_map(|p| match *p {
+            Pattern::Ramp { level, .. } => Some(level),
+            _ => None,
+        })
+        .collect();
+    levels.sort_unstable();
+    levels.dedup();
+    let mut samples = vec![(0.0f32, 0.0f32), (255.0, 1.0)];
+    for &level in &levels {
+        if level == 0 || level == 255 {
+            continue;
+        }
+        let img = if let Some(img) = images.grey(&Pattern::Ramp { channel: 3, level })? {
+            img
+        } else {
+            let mut sum: Option<Vec<f32>> = None;
+            let mut complete = true;
+            for channel in 0..3 {
+                match images.grey(&Pattern::Ramp { channel, level })? {
+                    Some(img) => {
+                        sum = Some(match sum {
+                            None => img,
+                            Some(s) => s.iter().zip(&img).map(|(a, b)| a + b).collect(),
+                        })
+                    }
+                    None => complete = false,
+                }
+            }
+            match (complete, sum) {
+                (true, Some(s)) => s.iter().zip(black).map(|(v, b)| v - 2.0 * b).collect(),
+                _ => continue,
+            }
+        };
+        let mut rel: Vec<f32> =
+            (0..img.len()).filter(|&i| lit[i]).map(|i| (img[i] - black[i]) / (white[i] - black[i])).collect();
+        if rel.len() < 16 {
+            continue;
+        }
+        let mid = rel.len() / 2;
+        let (_, m, _) = rel.select_nth_unstable_by(mid, f32::total_cmp);
+        samples.push((level as f32, *m));
+    }
+    if samples.len() < 5 {
+        return Ok(None);
+    }
+    samples.sort_by(|a, b| a.0.total_cmp(&b.0));
+    // Piecewise linear through the samples, then forced monotonic.
+    let mut curve = vec![0.0f32; 256];
+    for (v, out) in curve.iter_mut().enumerate() {
+        let v = v as f32;
+        let k = samples.partition_point(|s| s.0 <= v).clamp(1, samples.len() - 1);
+        let (a, b) = (samples[k - 1], samples[k]);
+        let t = if b.0 > a.0 { (v - a.0) / (b.0 - a.0) } else { 0.0 };
+        *out = a.1 + t * (b.1 - a.1);
+    }
+    for i in 1..256 {
+        curve[i] = curve[i].max(curve[i - 1]);
+    }
+    Ok(Some(curve))
+}
+
+/// Inverse of a monotonic 256-entry response: relative light to input in 0..=1.
+fn invert_response(curve: &[f32], light: f32) -> f32 {
+    let k = curve.partition_point(|&c| c < light);
+    if k == 0 {
+        return 0.0;
+    }
+    if k >= curve.len() {
+        return 1.0;
+    }
+    let (a, b) = (curve[k - 1], curve[k]);
+    let t = if b > a { (light - a) / (b - a) } else { 0.0 };
+    ((k - 1) as f32 + t) / 255.0
+}
+
+struct AxisResult {
+    coord: Vec<f32>,
+    weak_rejected: usize,
+    out_of_range: usize,
+    phase_rejected: usize,
+    one_weak: usize,
+    phase: Option<(u32, u32)>,
+}
+
+/// Per-pixel references every axis decodes against.
+struct Reference<'a> {
+    white: &'a [f32],
+    black: &'a [f32],
+    lit: &'a [bool],
+    /// Measured projector response for linearising phase images, if ramps were captured.
+    response: Option<&'a [f32]>,
+}
+
+fn decode_axis(
+    images: &dyn PatternImages,
+    projector: u32,
+    axis: Axis,
+    extent: u32,
+    reference: &Reference,
+    params: &DecodeParams,
+) -> Result<(AxisResult, Vec<f32>), CalibrateError> {
+    let Reference { white, black, lit, response } = *reference;
+    let n = gray_bits(extent);
+    let pixels = white.len();
+    let mut code = vec![0u32; pixels];
+    let mut weak = vec![0u32; pixels];
+    let mut min_margin = vec![f32::INFINITY; pixels];
+    for bit in 0..n {
+        let get = |inverted| {
+            let pattern = Pattern::GrayCode { axis, bit, inverted };
+            images
+                .grey(&pattern)?
+                .ok_or_else(|| CalibrateError::MissingPattern { projector, pattern: format!("{pattern:?}") })
+        };
+        let (p, q) = (get(false)?, get(true)?);
+        code.par_iter_mut().zip(weak.par_iter_mut()).zip(min_margin.par_iter_mut()).enumerate().for_each(
+            |(i, ((c, w), m))| {
+                let d = p[i] - q[i];
+                let range = (white[i] - black[i]).max(1e-6);
+                *c = (*c << 1) | u32::from(d > 0.0);
+                // The epsilon keeps 8-bit thresholds exact after the division by 255.
+                if d.abs() < params.min_bit_margin.max(params.min_bit_margin_rel * range) - 1e-6 {
+                    *w += 1;
+                }
+                *m = m.min(d.abs() / range);
+            },
+        );
+    }
+    let mut res = AxisResult {
+        coord: vec![f32::NAN; pixels],
+        weak_rejected: 0,
+        out_of_range: 0,
+        phase_rejected: 0,
+        one_weak: 0,
+        phase: None,
+    };
+    for i in 0..pixels {
+        if !lit[i] {
+            continue;
+        }
+        if weak[i] > params.max_weak_bits {
+            res.weak_rejected += 1;
+            continue;
+        }
+        let c = gray_to_binary(code[i]);
+        if c >= extent {
+            res.out_of_range += 1;
+            continue;
+        }
+        if weak[i] > 0 {
+            res.one_weak += 1;
+        }
+        res.coord[i] = c as f32;
+    }
+    if params.use_phase
+        && let Some((period, steps)) = phase_sequence(&images.patterns(), axis)
+    {
+        {
+            res.phase = Some((period, steps));
+            let mut s = vec![0.0f32; pixels];
+            let mut co = vec![0.0f32; pixels];
+            for step in 0..steps {
+                let img =
+                    images.grey(&Pattern::Phase { axis, period, step, steps })?.expect("checked complete");
+                let delta = std::f32::consts::TAU * step as f32 / steps as f32;
+                let (sd, cd) = delta.sin_cos();
+                s.par_iter_mut().zip(co.par_iter_mut()).enumerate().for_each(|(i, (s, c))| {
+                    let range = (white[i] - black[i]).max(1e-6);
+                    let rel = (img[i] - black[i]) / range;
+                    // Undo the projector's non-linear response so the pattern is a sinusoid again.
+                    let v = match response {
+                        Some(curve) => invert_response(curve, rel),
+                        None => rel,
+                    };
+                    *s += v * sd;
+                    *c += v * cd;
+                });
+            }
+            let p = period as f32;
+            for i in 0..pixels {
+                let g = res.coord[i];
+                if !g.is_finite() {
+                    continue;
+                }
+                let phi = s[i].atan2(co[i]).rem_euclid(std::f32::consts::TAU);
+                let cp = p * phi / std::f32::consts::TAU;
+                let k = ((g - cp) / p).round();
+                let c = k * p + cp;
+                if (c - g).abs() > params.max_phase_gray_disagreement || c < -0.5 || c > extent as f32 - 0.5 {
+                    res.coord[i] = f32::NAN;
+                    res.phase_rejected += 1;
+                } else {
+                    res.coord[i] = c;
+                }
+            }
+        }
+    }
+    Ok((res, min_margin))
+}
+
+/// Decodes one projector's structured light.
+///
+/// Fails only when the input is unusable as a whole (missing or mis-sized images, no contrast
+/// at all); noisy pixels are left undecoded and counted in the quality report.
+pub fn decode_projector(
+    images: &dyn PatternImages,
+    projector: u32,
+    projector_width: u32,
+    projector_height: u32,
+    params: &DecodeParams,
+) -> Result<ProjectorDecode, CalibrateError> {
+    let (width, height) = images.size();
+    let pixels = width as usize * height as usize;
+    let need = |pattern: Pattern| {
+        images
+            .grey(&pattern)?
+            .ok_or_else(|| CalibrateError::MissingPattern { projector, pattern: format!("{pattern:?}") })
+    };
+    let white = need(Pattern::White)?;
+    let black = need(Pattern::Black)?;
+    let contrast: Vec<f32> = white.iter().zip(&black).map(|(w, b)| w - b).collect();
+    let lit: Vec<bool> = contrast.iter().map(|&c| c > params.min_contrast + 1e-6).collect();
+    let lit_count = lit.iter().filter(|&&l| l).count();
+    if lit_count < (pixels / 1000).max(16) {
+        return Err(CalibrateError::NoContrast {
+            projector,
+            lit: lit_count,
+            pixels,
+            threshold: params.min_contrast,
+        });
+    }
+    let response = measure_response(images, &white, &black, &lit)?;
+    let reference = Reference {
+        white: &white,
+        black: &black,
+        lit: &lit,
+        response: if params.use_phase { response.as_deref() } else { None },
+    };
+    let (xr, mx) = decode_axis(images, projector, Axis::X, projector_width, &reference, params)?;
+    let (yr, my) = decode_axis(images, projector, Axis::Y, projector_height, &reference, params)?;
+    let mut x = xr.coord;
+    let mut y = yr.coord;
+    let mut margins = Vec::new();
+    let mut decoded = 0;
+    for i in 0..pixels {
+        if x[i].is_finite() && y[i].is_finite() {
+            decoded += 1;
+            margins.push(mx[i].min(my[i]));
+        } else {
+            x[i] = f32::NAN;
+            y[i] = f32::NAN;
+        }
+    }
+    let median_relative_margin = if margins.is_empty() {
+        0.0
+    } else {
+        let mid = margins.len() / 2;
+        *margins.select_nth_unstable_by(mid, f32::total_cmp).1
+    };
+    let phase = xr.phase.or(yr.phase);
+    let mut quality = DecodeQuality {
+        projector,
+        pixels,
+        lit: lit_count,
+        decoded,
+        weak: xr.weak_rejected + yr.weak_rejected,
+        out_of_range: xr.out_of_range + yr.out_of_range,
+        phase_rejected: xr.phase_rejected + yr.phase_rejected,
+        one_weak_bit: xr.one_weak + yr.one_weak,
+        phase_steps: phase.map_or(0, |p| p.1),
+        phase_period: phase.map_or(0, |p| p.0),
+        linearised: response.is_some() && phase.is_some(),
+        median_relative_margin,
+        warnings: Vec::new(),
+    };
+    if decoded < lit_count / 2 {
+        quality.warnings.push(format!(
+            "projector {projector}: only {decoded} of {lit_count} lit pixels decoded (noise, blur or a wrong pattern order?)"
+        ));
+    }
+    if let Some((_, steps)) = phase {
+        if response.is_none() && steps < 6 {
+            quality.warnings.push(format!(
+                "projector {projector}: {steps}-step phase shift without gray ramps to linearise it; \
+                 the projector's non-linear response biases the phase (use >= 6 steps or capture ramps)"
+            ));
+        }
+    } else {
+        quality.warnings.push(format!(
+            "projector {projector}: no phase-shift images; correspondences are whole projector pixels"
+        ));
+    }
+    if decoded < pixels / 100 {
+        quality.warnings.push(format!(
+            "projector {projector}: decoded only {decoded} of {pixels} camera pixels; does it see the object?"
+        ));
+    }
+    Ok(ProjectorDecode { width, height, x, y, contrast, response, quality })
+}
+
+/// Pattern images held in memory (tests, benches, the virtual stage in-process).
+#[derive(Default)]
+pub struct MemoryImages {
+    pub width: u32,
+    pub height: u32,
+    pub images: Vec<(Pattern, Vec<f32>)>,
+}
+
+impl PatternImages for MemoryImages {
+    fn size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+
+    fn grey(&self, pattern: &Pattern) -> Result<Option<Vec<f32>>, CalibrateError> {
+        Ok(self.images.iter().find(|(p, _)| p == pattern).map(|(_, img)| img.clone()))
+    }
+
+    fn patterns(&self) -> Vec<Pattern> {
+        self.images.iter().map(|(p, _)| p.clone()).collect()
+    }
+}
+
+/// The full pattern list our own capture uses for a projector: white, black, Gray code with
+/// inverses on both axes, and `steps`-step phase shift of `period` on both axes.
+pub fn standard_patterns(width: u32, height: u32, period: u32, steps: u32) -> Vec<Pattern> {
+    let mut out = vec![Pattern::White, Pattern::Black];
+    for (axis, extent) in [(Axis::X, width), (Axis::Y, height)] {
+        for bit in 0..gray_bits(extent) {
+            for inverted in [false, true] {
+                out.push(Pattern::GrayCode { axis, bit, inverted });
+            }
+        }
+        if steps > 0 {
+            for step in 0..steps {
+                out.push(Pattern::Phase { axis, period, step, steps });
+            }
+        }
+    }
+    out
+}
+
+/// Scale of the correspondence-map PNGs: value = round(coordinate * 16) + 1, 0 = not decoded.
+pub const MAP_SCALE: f32 = 16.0;
+
+/// Writes one projector's correspondence maps into `dir`: `proj<k>_x.png` and `proj<k>_y.png`
+/// (16-bit grey, value = round(16 * coordinate) + 1, 0 where not decoded; coordinates up to
+/// 4095 px) and `proj<k>_coverage.png` (8-bit colour for people: red = x, green = y, black =
+/// not decoded).
+pub fn save_maps(
+    d: &ProjectorDecode,
+    index: u32,
+    projector_width: u32,
+    projector_height: u32,
+    dir: &Path,
+) -> Result<(), CalibrateError> {
+    use crate::imgio::ImageError;
+    let enc =
+        |c: f32| if c.is_finite() { ((c * MAP_SCALE).round() + 1.0).clamp(1.0, 65535.0) as u16 } else { 0 };
+    for (name, values) in [("x", &d.x), ("y", &d.y)] {
+        let path = dir.join(format!("proj{index}_{name}.png"));
+        let buf: image::ImageBuffer<image::Luma<u16>, Vec<u16>> =
+            image::ImageBuffer::from_vec(d.width, d.height, values.iter().map(|&c| enc(c)).collect())
+                .expect("sized");
+        buf.save(&path).map_err(|source| ImageError::Write { path: path.clone(), source })?;
+    }
+    let path = dir.join(format!("proj{index}_coverage.png"));
+    let img = image::RgbImage::from_fn(d.width, d.height, |x, y| {
+        let i = (y * d.width + x) as usize;
+        if d.is_valid(i) {
+            image::Rgb([
+                (40.0 + 215.0 * d.x[i] / projector_width as f32) as u8,
+                (40.0 + 215.0 * d.y[i] / projector_height as f32) as u8,
+                60,
+            ])
+        } else {
+            image::Rgb([0, 0, 0])
+        }
+    });
+    img.save(&path).map_err(|source| ImageError::Write { path, source })?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use proptest::prelude::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    use super::*;
+
+    fn normal(rng: &mut ChaCha8Rng) -> f64 {
+        // Box-Muller: rand 0.8 has no normal distribution without rand_distr.
+        let (u1, u2): (f64, f64) = (rng.r#gen::<f64>().max(1e-12), rng.r#gen());
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    }
+
+    /// Renders a synthetic capture: camera pixel i sees projector point `map(i)` (or nothing),
+    /// through a projector with response `level^gamma`, an albedo of 0.6 and Gaussian noise.
+    pub(crate) fn render(
+        cam: (u32, u32),
+        proj: (u32, u32),
+        map: &dyn Fn(u32, u32) -> Option<(f64, f64)>,
+        patterns: &[Pattern],
+        gamma: f64,
+        noise: f64,
+        seed: u64,
+    ) -> MemoryImages {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut images = Vec::new();
+        for p in patterns {
+            let mut img = Vec::with_capacity((cam.0 * cam.1) as usize);
+            for v in 0..cam.1 {
+                for u in 0..cam.0 {
+                    let level = match map(u, v) {
+                        Some((px, py))
+                            if px >= -0.5
+                                && py >= -0.5
+                                && px < proj.0 as f64 - 0.5
+                                && py < proj.1 as f64 - 0.5 =>
+                        {
+                            if let Pattern::Phase { axis, period, step, steps } = *p {
+                                // The sinusoid at the continuous position, quantised to 8 bits.
+                                let c = if axis == Axis::X { px } else { py };
+                                let val = 0.5
+                                    + 0.5
+                                        * (std::f64::consts::TAU * c / period as f64
+                                            - std::f64::consts::TAU * step as f64 / steps as f64)
+                                            .cos();
+                                (val * 255.0).round() / 255.0
+                            } else {
+                                let (x, y) = (px.round() as u32, py.round() as u32);
+                                pattern_value(p, x, y, proj.0, proj.1) as f64 / 255.0
+                            }
+                        }
+                        _ => 0.0,
+                    };
+                    let light = 0.02 + 0.6 * level.powf(gamma) + normal(&mut rng) * noise;
+                    img.push(light as f32);
+                }
+            }
+            images.push((p.clone(), img));
+        }
+        MemoryImages { width: cam.0, height: cam.1, images }
+    }
+
+    fn affine(u: u32, v: u32) -> Option<(f64, f64)> {
+        Some((2.3 + 0.37 * u as f64 + 0.02 * v as f64, 1.7 + 0.41 * v as f64 - 0.015 * u as f64))
+    }
+
+    fn errors(d: &ProjectorDecode, map: &dyn Fn(u32, u32) -> Option<(f64, f64)>) -> (usize, f64, f64) {
+        let (mut n, mut sum2, mut max) = (0, 0.0, 0.0f64);
+        for v in 0..d.height {
+            for u in 0..d.width {
+                let i = (v * d.width + u) as usize;
+                if !d.is_valid(i) {
+                    continue;
+                }
+                let (tx, ty) = map(u, v).unwrap();
+                let e = (d.x[i] as f64 - tx).hypot(d.y[i] as f64 - ty);
+                n += 1;
+                sum2 += e * e;
+                max = max.max(e);
+            }
+        }
+        (n, (sum2 / n.max(1) as f64).sqrt(), max)
+    }
+
+    #[test]
+    fn gray_round_trip() {
+        for c in 0..5000u32 {
+            assert_eq!(gray_to_binary(c ^ (c >> 1)), c);
+        }
+    }
+
+    #[test]
+    fn gray_code_alone_decodes_to_the_nearest_pixel() {
+        let pats = standard_patterns(64, 48, 8, 0);
+        let imgs = render((120, 100), (64, 48), &affine, &pats, 2.2, 0.003, 1);
+        let d = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        let (n, rms, max) = errors(&d, &affine);
+        assert!(n > 11_000, "decoded {n}");
+        assert!(max <= 1.0 + 1e-6, "max error {max}");
+        assert!(rms < 0.45, "rms {rms}");
+        assert!(d.quality.warnings.iter().any(|w| w.contains("no phase-shift")));
+    }
+
+    #[test]
+    fn phase_shift_gives_sub_pixel_correspondences() {
+        let pats = standard_patterns(64, 48, 8, 8);
+        let imgs = render((120, 100), (64, 48), &affine, &pats, 2.2, 0.002, 2);
+        let d = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        let (n, rms, _) = errors(&d, &affine);
+        assert!(n > 11_000, "decoded {n}");
+        assert!(rms < 0.05, "rms {rms}");
+        assert_eq!(d.quality.phase_steps, 8);
+    }
+
+    #[test]
+    fn gray_ramps_linearise_a_four_step_phase_shift() {
+        let mut pats = standard_patterns(64, 48, 8, 4);
+        let plain = render((120, 100), (64, 48), &affine, &pats, 2.2, 0.0, 3);
+        let d0 = decode_projector(&plain, 0, 64, 48, &DecodeParams::default()).unwrap();
+        assert!(!d0.quality.linearised);
+        assert!(d0.quality.warnings.iter().any(|w| w.contains("4-step")));
+        pats.extend((1..16).map(|k| Pattern::Ramp { channel: 3, level: (k * 17) as u8 }));
+        let ramps = render((120, 100), (64, 48), &affine, &pats, 2.2, 0.0, 3);
+        let d1 = decode_projector(&ramps, 0, 64, 48, &DecodeParams::default()).unwrap();
+        assert!(d1.quality.linearised);
+        let (_, rms0, _) = errors(&d0, &affine);
+        let (_, rms1, _) = errors(&d1, &affine);
+        assert!(rms1 < 0.5 * rms0 && rms1 < 0.05, "linearised {rms1} vs raw {rms0}");
+    }
+
+    #[test]
+    fn no_contrast_and_missing_images_are_clear_errors() {
+        let pats = standard_patterns(64, 48, 8, 0);
+        let dark = render((40, 30), (64, 48), &|_, _| None, &pats, 2.2, 0.001, 4);
+        let err = decode_projector(&dark, 2, 64, 48, &DecodeParams::default()).unwrap_err();
+        assert!(matches!(err, CalibrateError::NoContrast { projector: 2, .. }), "{err}");
+        let mut imgs = render((40, 30), (64, 48), &affine, &pats, 2.2, 0.001, 4);
+        imgs.images.retain(|(p, _)| *p != Pattern::GrayCode { axis: Axis::Y, bit: 3, inverted: true });
+        let err = decode_projector(&imgs, 1, 64, 48, &DecodeParams::default()).unwrap_err();
+        assert!(err.to_string().contains("projector 1") && err.to_string().contains("bit: 3"), "{err}");
+    }
+
+    #[test]
+    fn a_projector_seeing_little_is_a_warning_not_a_failure() {
+        let pats = standard_patterns(64, 48, 8, 0);
+        let corner = |u: u32, v: u32| if u < 6 && v < 6 { affine(u, v) } else { None };
+        let imgs = render((120, 100), (64, 48), &corner, &pats, 2.2, 0.001, 5);
+        let d = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        assert_eq!(d.quality.decoded, 36);
+        assert!(d.quality.warnings.iter().any(|w| w.contains("does it see the object")));
+    }
+
+    #[test]
+    fn mis_sized_image_names_the_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("white.png");
+        image::GrayImage::new(5, 4).save(&path).unwrap();
+        let err = load_grey(&path, 6, 4, true).unwrap_err();
+        assert!(err.to_string().contains("white.png") && err.to_string().contains("expected 6x4"), "{err}");
+        let err = load_grey(&dir.path().join("absent.png"), 6, 4, true).unwrap_err();
+        assert!(err.to_string().contains("absent.png"), "{err}");
+    }
+
+    #[test]
+    fn opencv_order_needs_exact_count() {
+        let files: Vec<PathBuf> = (0..42).map(|i| format!("g{i:02}.png").into()).collect();
+        let cap = opencv_order(&files, 1024, 768).unwrap();
+        assert_eq!(cap.shots[0].pattern, Pattern::GrayCode { axis: Axis::X, bit: 0, inverted: false });
+        assert_eq!(cap.shots[1].pattern, Pattern::GrayCode { axis: Axis::X, bit: 0, inverted: true });
+        assert_eq!(cap.shots[20].pattern, Pattern::GrayCode { axis: Axis::Y, bit: 0, inverted: false });
+        assert_eq!(cap.shots[40].pattern, Pattern::White);
+        assert_eq!(cap.shots[41].pattern, Pattern::Black);
+        let err = opencv_order(&files[..41], 1024, 768).unwrap_err();
+        assert!(err.to_string().contains("expected exactly 42"), "{err}");
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(32))]
+        /// Encode random projector columns and rows, add camera noise, decode: every pixel
+        /// comes back exactly (noise well below the stripe contrast).
+        #[test]
+        fn encode_noise_decode_random_columns(
+            cols in proptest::collection::vec(0u32..1400, 64),
+            rows in proptest::collection::vec(0u32..1050, 64),
+            noise in 0.0f64..0.04,
+            seed in 0u64..1000,
+        ) {
+            let map = |u: u32, _v: u32| Some((cols[u as usize] as f64, rows[u as usize] as f64));
+            let pats = standard_patterns(1400, 1050, 16, 0);
+            let imgs = render((64, 1), (1400, 1050), &map, &pats, 1.0, noise, seed);
+            let d = decode_projector(&imgs, 0, 1400, 1050, &DecodeParams::default()).unwrap();
+            for u in 0..64usize {
+                prop_assert_eq!(d.x[u], cols[u] as f32);
+                prop_assert_eq!(d.y[u], rows[u] as f32);
+            }
+        }
+    }
+}

@@ -1,0 +1,171 @@
+//! The geometry half of calibration as one call: decode every projector, self-calibrate them
+//! jointly, fix the scale, triangulate, and fill the stage model's geometric fields
+//! (camera, projector intrinsics and poses, points, normals, correspondences).
+//!
+//! The photometric fields (responses, black level, lux, vignetting, transport, gain, ambient)
+//! are the later steps' (`transport`, `radiometry`). Until they run, a projector's response is
+//! the grey response measured from the capture's gray ramps when there are any (else the
+//! identity), its black level 0 and `lux_at_1m` 0 ("not measured").
+
+use std::path::Path;
+
+use nalgebra::Vector3;
+use serde::Serialize;
+
+use super::CalibrateError;
+use super::decode::{self, CaptureImages, DecodeParams, DecodeQuality, ProjectorDecode};
+use super::selfcal::{self, Conditioning, KnownLength, ProjectorObservations, SelfCalParams, SelfCalResult};
+use super::triangulate::{self, DenseGeometry, TriangulateParams};
+use crate::capture_set::CaptureManifest;
+use crate::stage_model::{ProjectorModel, StageModel, Transport};
+
+#[derive(Clone, Debug)]
+pub struct GeometryOptions {
+    pub decode: DecodeParams,
+    pub selfcal: SelfCalParams,
+    pub triangulate: TriangulateParams,
+    pub known: KnownLength,
+}
+
+impl GeometryOptions {
+    pub fn new(known: KnownLength) -> Self {
+        Self {
+            decode: DecodeParams::default(),
+            selfcal: SelfCalParams::default(),
+            triangulate: TriangulateParams::default(),
+            known,
+        }
+    }
+}
+
+/// Figures of the geometric calibration, for people and the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct GeometryReport {
+    pub decode: Vec<DecodeQuality>,
+    /// RMS reprojection error (projector px) of the bundle adjustment's inliers.
+    pub adjustment_rms_px: f64,
+    pub adjustment_iterations: usize,
+    /// RMS reprojection error (projector px) over every triangulated observation.
+    pub dense_rms_px: f64,
+    pub points: usize,
+    pub rejected_by_residual: usize,
+    pub rejected_by_depth: usize,
+    /// Millimetres per solver unit, from the known length.
+    pub scale_mm: f64,
+    pub conditioning: Vec<Conditioning>,
+    pub warnings: Vec<String>,
+}
+
+/// Decodes every projector of a capture set (`progress` is called after each projector).
+pub fn decode_capture(
+    dir: &Path,
+    manifest: &CaptureManifest,
+    params: &DecodeParams,
+    progress: &mut dyn FnMut(usize),
+) -> Result<Vec<ProjectorDecode>, CalibrateError> {
+    let mut out = Vec::new();
+    for (k, p) in manifest.projectors.iter().enumerate() {
+        let images = CaptureImages {
+            dir,
+            projector: p,
+            width: manifest.camera.width,
+            height: manifest.camera.height,
+            raw: false,
+        };
+        out.push(decode::decode_projector(&images, p.index, p.width, p.height, params)?);
+        progress(k + 1);
+    }
+    Ok(out)
+}
+
+/// Self-calibration, scale and dense geometry from decoded correspondences.
+pub fn solve_geometry(
+    manifest: &CaptureManifest,
+    decodes: &[ProjectorDecode],
+    options: &GeometryOptions,
+) -> Result<(StageModel, GeometryReport, DenseGeometry, SelfCalResult), CalibrateError> {
+    let cam = &manifest.camera;
+    let maps: Vec<Vec<[f32; 2]>> = decodes.iter().map(ProjectorDecode::pairs).collect();
+    let obs: Vec<ProjectorObservations> = manifest
+        .projectors
+        .iter()
+        .zip(&maps)
+        .map(|(p, m)| ProjectorObservations { width: p.width, height: p.height, map: m })
+        .collect();
+    let mut cal = selfcal::self_calibrate(cam, &obs, &options.selfcal)?;
+    let scale = selfcal::scale_for(&cal.projectors, &options.known)?;
+    for g in &mut cal.projectors {
+        g.translation *= scale;
+    }
+    let refs: Vec<&[[f32; 2]]> = maps.iter().map(Vec::as_slice).collect();
+    let dense = triangulate::triangulate(cam, &cal.projectors, &refs, &options.triangulate);
+    let mut warnings: Vec<String> = decodes.iter().flat_map(|d| d.quality.warnings.clone()).collect();
+    warnings.extend(cal.warnings.iter().cloned());
+    let projectors = cal
+        .projectors
+        .iter()
+        .zip(decodes)
+        .map(|(g, d)| {
+            let curve = d.response.clone().unwrap_or_else(|| (0..256).map(|v| v as f32 / 255.0).collect());
+            let r = g.rotation;
+            ProjectorModel {
+                width: g.width,
+                height: g.height,
+                f: g.f,
+                cx: g.cx,
+                cy: g.cy,
+                rotation: [
+                    [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
+                    [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
+                    [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
+                ],
+                translation: [g.translation.x, g.translation.y, g.translation.z],
+                response: [curve.clone(), curve.clone(), curve],
+                black: [0.0; 3],
+                lux_at_1m: 0.0,
+                vignetting: Vec::new(),
+            }
+        })
+        .collect();
+    let model = StageModel {
+        camera: cam.clone(),
+        projectors,
+        points: dense.points.clone(),
+        normals: dense.normals.clone(),
+        correspondences: maps,
+        transport: vec![Transport::default(); decodes.len()],
+        gain: Vec::new(),
+        ambient: Vec::new(),
+        provenance: format!(
+            "restage calibrate {} (geometry; responses from ramps or identity until radiometry) from: {}",
+            env!("CARGO_PKG_VERSION"),
+            manifest.source
+        ),
+    };
+    model.validate().map_err(|e| CalibrateError::Solver(e.to_string()))?;
+    let report = GeometryReport {
+        decode: decodes.iter().map(|d| d.quality.clone()).collect(),
+        adjustment_rms_px: cal.rms_px,
+        adjustment_iterations: cal.iterations,
+        dense_rms_px: dense.rms_px(),
+        points: dense.valid,
+        rejected_by_residual: dense.rejected_residual,
+        rejected_by_depth: dense.rejected_depth,
+        scale_mm: scale,
+        conditioning: cal.conditioning.clone(),
+        warnings,
+    };
+    Ok((model, report, dense, cal))
+}
+
+/// Largest extent of the reconstructed points (bounding-box diagonal, mm).
+pub fn extent_mm(points: &[[f32; 3]]) -> f64 {
+    let mut lo = Vector3::repeat(f64::INFINITY);
+    let mut hi = Vector3::repeat(f64::NEG_INFINITY);
+    for p in points.iter().filter(|p| p[2].is_finite()) {
+        let v = Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64);
+        lo = lo.inf(&v);
+        hi = hi.sup(&v);
+    }
+    if lo.x.is_finite() { (hi - lo).norm() } else { 0.0 }
+}

@@ -1,0 +1,194 @@
+//! `restage-author calibrate CAPTURE_DIR --out STAGE_DIR`: the stage model from a capture
+//! set, as a clear sequence of steps (decode, self-calibrate and triangulate, then light
+//! transport, responses, vignetting, black levels, lux and gain when a lux reading is given,
+//! then save with PNG reports and a PLY model).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::Args;
+use restage_authoring::calibrate::geometry::{self, GeometryOptions, GeometryReport};
+use restage_authoring::calibrate::lux::LuxReadings;
+use restage_authoring::calibrate::photometric;
+use restage_authoring::calibrate::selfcal::KnownLength;
+use restage_authoring::calibrate::transport::SnapParams;
+use restage_authoring::calibrate::{ply, report};
+use restage_authoring::capture_set::CaptureManifest;
+use restage_authoring::imgio::LinearImage;
+use restage_authoring::stage_model::StageModel;
+
+#[derive(Args)]
+pub struct CalibrateArgs {
+    /// Capture directory (with capture.json).
+    pub capture: PathBuf,
+    /// Stage directory to write: stage.bin, stage.json, model.ply, report.png, report.json.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// The one length that fixes the scale: the distance in millimetres from the camera's
+    /// centre of projection (its lens) to the lens of projector --known-projector, measured
+    /// with a tape. Everything else is calibrated from the images.
+    #[arg(long)]
+    pub known_distance_mm: f64,
+    /// Which projector --known-distance-mm refers to.
+    #[arg(long, default_value_t = 0)]
+    pub known_projector: usize,
+    /// Lux-meter readings at full white, one per projector (`0=420,1=395,2=410`), the meter at
+    /// the object's centre facing the projector. Enables the photometric steps (paper §5.2).
+    #[arg(long, conflicts_with = "lux_file")]
+    pub lux_white: Option<String>,
+    /// The same readings as a TOML file, optionally with the reference pixel, the meter's
+    /// orientation and an ambient reading (see `calibrate::lux`).
+    #[arg(long)]
+    pub lux_file: Option<PathBuf>,
+}
+
+/// Runs calibration; the demo calls this too. Without lux readings only the geometry is
+/// calibrated.
+pub fn calibrate(
+    capture: &Path,
+    out: &Path,
+    known: KnownLength,
+    lux: Option<&LuxReadings>,
+) -> Result<GeometryReport> {
+    let started = std::time::Instant::now();
+    // Step 1: the capture set.
+    let manifest = CaptureManifest::load(capture)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let options = GeometryOptions::new(known);
+
+    // Step 2: decode structured light, projector by projector.
+    let bar = crate::cli::progress(manifest.projectors.len() as u64, "decoding");
+    let decodes =
+        geometry::decode_capture(capture, &manifest, &options.decode, &mut |k| bar.set_position(k as u64))
+            .with_context(|| format!("decoding {}", capture.display()))?;
+    bar.finish_and_clear();
+    for d in &decodes {
+        let q = &d.quality;
+        tracing::info!(
+            "projector {}: {} of {} camera pixels decoded (phase {} steps, linearised {})",
+            q.projector,
+            q.decoded,
+            q.pixels,
+            q.phase_steps,
+            q.linearised
+        );
+    }
+
+    // Step 3: self-calibrate all projectors jointly, scale, triangulate.
+    let spinner = indicatif::ProgressBar::new_spinner().with_message("self-calibrating and triangulating");
+    spinner.enable_steady_tick(std::time::Duration::from_millis(200));
+    let (mut model, report, dense, _) = geometry::solve_geometry(&manifest, &decodes, &options)
+        .with_context(|| format!("calibrating {}", capture.display()))?;
+    spinner.finish_and_clear();
+
+    // Step 4: light transport (refining the correspondences), responses, vignetting, black
+    // levels, lux and gain.
+    if let Some(lux) = lux {
+        let bar = crate::cli::progress(1, "photometric");
+        let show = |stage: &str, done: usize, total: usize| {
+            bar.set_message(stage.to_string());
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        };
+        let photo = photometric::calibrate_photometry(
+            capture,
+            &manifest,
+            &mut model,
+            lux,
+            &SnapParams::default(),
+            &show,
+        )
+        .with_context(|| format!("photometric calibration of {}", capture.display()))?;
+        bar.finish_and_clear();
+        let sizes: Vec<(u32, u32)> = manifest.projectors.iter().map(|p| (p.width, p.height)).collect();
+        photo
+            .save(out, &sizes)
+            .with_context(|| format!("writing the photometric report in {}", out.display()))?;
+        for (k, t) in photo.transport.iter().enumerate() {
+            tracing::info!(
+                "projector {k}: {} of {} dots snapped, transport covers {:.1} % of its lit pixels, \
+                 lux_at_1m {:.1}, leakage {:.2} %",
+                t.dots,
+                t.predicted,
+                100.0 * t.coverage,
+                model.projectors[k].lux_at_1m,
+                100.0 * photo.radiometry[k].max_leakage()
+            );
+        }
+    } else {
+        tracing::warn!(
+            "no --lux-white or --lux-file: only the geometry is calibrated (no light transport, \
+             responses or gain)"
+        );
+    }
+
+    // Step 5: save the model, the report and the PLY.
+    save(&model, out)?;
+    let sizes: Vec<(u32, u32)> = manifest.projectors.iter().map(|p| (p.width, p.height)).collect();
+    let png = out.join("report.png");
+    report::render(&decodes, &dense, &sizes)
+        .save(&png)
+        .with_context(|| format!("writing {}", png.display()))?;
+    let colours =
+        LinearImage::load_sized(&capture.join(&manifest.photo), model.camera.width, model.camera.height)
+            .map(|photo| photo.to_srgb8(1.0).pixels().map(|p| p.0).collect::<Vec<[u8; 3]>>())
+            .map_err(|e| tracing::warn!("no colours for the PLY: {e}"))
+            .ok();
+    let n = ply::save_ply(&out.join("model.ply"), &model.points, &model.normals, colours.as_deref())?;
+    let json = out.join("report.json");
+    std::fs::write(&json, serde_json::to_string_pretty(&report)?)
+        .with_context(|| format!("writing {}", json.display()))?;
+
+    for w in &report.warnings {
+        tracing::warn!("{w}");
+    }
+    tracing::info!(
+        "calibrated in {:.1} s: {} points ({n} in model.ply), reprojection RMS {:.3} px (adjustment {:.3} px)",
+        started.elapsed().as_secs_f64(),
+        report.points,
+        report.dense_rms_px,
+        report.adjustment_rms_px
+    );
+    for (p, c) in model.projectors.iter().zip(&report.conditioning) {
+        tracing::info!(
+            "projector {}: f {:.1} +- {:.2} px, cx {:.1} +- {:.2}, cy {:.1} +- {:.2}, baseline {:.1} mm",
+            c.projector,
+            p.f,
+            c.f_std_px,
+            p.cx,
+            c.cx_std_px,
+            p.cy,
+            c.cy_std_px,
+            (p.translation[0].powi(2) + p.translation[1].powi(2) + p.translation[2].powi(2)).sqrt()
+        );
+    }
+    Ok(report)
+}
+
+/// Writes stage.bin and its human summary stage.json.
+fn save(model: &StageModel, out: &Path) -> Result<()> {
+    model.save(out)?;
+    let summary = serde_json::json!({
+        "note": "human summary of stage.bin (never read back)",
+        "provenance": model.provenance,
+        "camera": model.camera,
+        "points": model.points.iter().filter(|p| p[2].is_finite()).count(),
+        "projectors": model.projectors.iter().map(|p| serde_json::json!({
+            "width": p.width, "height": p.height, "f": p.f, "cx": p.cx, "cy": p.cy,
+            "rotation": p.rotation, "translation_mm": p.translation,
+        })).collect::<Vec<_>>(),
+    });
+    let path = out.join("stage.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&summary)?)
+        .with_context(|| format!("writing {}", path.display()))
+}
+
+pub fn run(args: CalibrateArgs) -> Result<()> {
+    let known = KnownLength::Baseline { projector: args.known_projector, mm: args.known_distance_mm };
+    let lux = match (&args.lux_white, &args.lux_file) {
+        (Some(text), _) => Some(LuxReadings::parse(text)?),
+        (None, Some(path)) => Some(LuxReadings::load(path)?),
+        (None, None) => None,
+    };
+    calibrate(&args.capture, &args.out, known, lux.as_ref()).map(|_| ())
+}

@@ -1,0 +1,121 @@
+//! `restage-author eval <step>`: compare a step's output with the virtual stage's ground truth
+//! and print the figures as a table and as JSON.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use clap::{Args, Subcommand};
+use restage_authoring::eval::{self, Metric};
+use restage_authoring::stage_model::StageModel;
+
+#[derive(Args)]
+pub struct EvalArgs {
+    #[command(subcommand)]
+    pub step: EvalStep,
+    /// Also write the figures as JSON here.
+    #[arg(long, global = true)]
+    pub json: Option<PathBuf>,
+}
+
+#[derive(Subcommand)]
+pub enum EvalStep {
+    /// Calibrated geometry against the capture's ground-truth stage model.
+    Geometry {
+        /// Capture directory of the virtual stage (its ground-truth/stage/ is the reference).
+        #[arg(long)]
+        capture: PathBuf,
+        /// Stage directory written by `calibrate`.
+        #[arg(long)]
+        stage: PathBuf,
+    },
+    /// Colour classification, ours vs the k-means++ baselines, against the deteriorated labels.
+    Classify {
+        /// Capture directories (photo.png + ground-truth/); none = every built-in scene,
+        /// simulated in memory.
+        #[arg(long)]
+        capture: Vec<PathBuf>,
+        /// Camera size of the simulated scenes, WIDTHxHEIGHT.
+        #[arg(long, default_value = "800x600")]
+        camera: String,
+        /// Seed of the simulated scenes and of the derived picks.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Write each case's photo, truth, preview and accuracies into OUT/<case>/.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Light transport, responses, vignetting, black levels, lux and gain (paper §5.2) against
+    /// the capture's ground-truth stage model.
+    Transport {
+        /// Capture directory of the virtual stage (its ground-truth/stage/ is the reference).
+        #[arg(long)]
+        capture: PathBuf,
+        /// Stage directory written by `calibrate` with lux readings.
+        #[arg(long)]
+        stage: PathBuf,
+    },
+}
+
+pub fn run(args: EvalArgs) -> Result<()> {
+    let metrics: Vec<Metric> = match &args.step {
+        EvalStep::Geometry { capture, stage } => {
+            let truth_dir = capture.join("ground-truth").join("stage");
+            let truth = StageModel::load(&truth_dir)
+                .with_context(|| format!("reading the ground truth in {}", truth_dir.display()))?;
+            let est = StageModel::load(stage)?;
+            eval::geometry::evaluate(&est, &truth)
+        }
+        EvalStep::Classify { capture, camera, seed, out } => {
+            eval_classify(capture, camera, *seed, out.as_deref())?
+        }
+        EvalStep::Transport { capture, stage } => {
+            let truth_dir = capture.join("ground-truth").join("stage");
+            let truth = StageModel::load(&truth_dir)
+                .with_context(|| format!("reading the ground truth in {}", truth_dir.display()))?;
+            let est = StageModel::load(stage)?;
+            eval::transport::evaluate(&est, &truth)
+        }
+    };
+    print!("{}", eval::table(&metrics));
+    let json = serde_json::to_string_pretty(&metrics)?;
+    println!("{json}");
+    if let Some(path) = &args.json {
+        std::fs::write(path, &json).with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
+fn eval_classify(
+    captures: &[PathBuf],
+    camera: &str,
+    seed: u64,
+    out: Option<&std::path::Path>,
+) -> Result<Vec<Metric>> {
+    use restage_authoring::eval::classify as ec;
+    use restage_authoring::stage_sim::SceneName;
+    let mut cases = Vec::new();
+    if captures.is_empty() {
+        let (w, h) = camera
+            .split_once('x')
+            .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+            .with_context(|| format!("--camera {camera}: expected WIDTHxHEIGHT, e.g. 800x600"))?;
+        for scene in SceneName::ALL {
+            tracing::info!("simulating the {} photo", scene.name());
+            cases.push(ec::scene_case(scene, [w, h], seed)?);
+        }
+    } else {
+        for c in captures {
+            cases.push(ec::capture_case(c).with_context(|| format!("reading capture {}", c.display()))?);
+        }
+    }
+    let mut metrics = Vec::new();
+    for case in &cases {
+        let e = ec::evaluate_photo(&case.label, &case.photo, &case.truth, &case.names, &case.display, seed)
+            .with_context(|| format!("classifying {}", case.label))?;
+        if let Some(dir) = out {
+            ec::save_case(&dir.join(&case.label), case, &e)?;
+        }
+        metrics.extend(ec::metrics(&e));
+    }
+    Ok(metrics)
+}
