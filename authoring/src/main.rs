@@ -28,6 +28,8 @@ enum Command {
     Render(cli::render::Args),
     /// Classify a photo's pixels into the picked paint colours (paper §4.1).
     Classify(cli::classify::ClassifyArgs),
+    /// Evaluate restoration on the virtual stage's built-in scenes against their pristine labels.
+    EvalRestore(cli::eval_restore::EvalRestoreArgs),
     /// Restore a classified label map by contour energy minimisation (paper §4.2-4.4).
     Restore(cli::restore::RestoreArgs),
     /// One frame per projector for a restored image, under the light bound (paper §5.1).
@@ -61,6 +63,7 @@ fn main() -> Result<()> {
         Command::Render(args) => cli::render::run(&args),
         Command::Classify(args) => cli::classify::run(&args),
         Command::Restore(a) => cli::restore::run(&a),
+        Command::EvalRestore(a) => cli::eval_restore::run(&a),
         Command::Compensate(a) => cli::compensate::run(a),
         Command::Relight(a) => cli::relight::run(a),
         Command::Keygen(a) => cli::keygen::run(&a),

@@ -50,7 +50,11 @@ impl std::fmt::Display for ClassifySummary {
             self.weights[1],
             self.weights[2],
             self.iterations,
-            if self.converged { "" } else { " (not converged)" },
+            match (self.converged, self.iterations) {
+                (true, _) => "",
+                (false, 1) => " (one assignment pass)",
+                (false, _) => " (not converged)",
+            },
             self.compute.as_secs_f64()
         )
     }

@@ -9,6 +9,7 @@ pub mod decode;
 pub mod demo;
 pub mod demo_chain;
 pub mod eval;
+pub mod eval_restore;
 pub mod inspect;
 pub mod keygen;
 pub mod relight;

@@ -15,8 +15,10 @@ use crate::eval::Metric;
 use crate::imgio::LinearImage;
 use crate::stage_sim::{GROUND_TRUTH_DIR, SceneConfig, SceneName, StageSimError, VirtualStage};
 
-/// Picks per colour the simulated conservator clicks.
-pub const PICKS_PER_CLASS: usize = 6;
+/// Picks per colour the simulated conservator clicks (6 gave 98.1 / 92.7 / 98.6 % on
+/// vase / bowl / jar, 12 gives 99.9 / 96.3 / 98.3 %: the result depends on which pixels are
+/// clicked).
+pub const PICKS_PER_CLASS: usize = 12;
 /// Accuracy target of ours on every built-in scene.
 pub const TARGET_ACCURACY: f64 = 0.98;
 
@@ -303,6 +305,17 @@ pub fn save_case(dir: &Path, case: &EvalCase, e: &PhotoEval) -> Result<(), Class
 mod tests {
     use super::*;
     use crate::classify::synthetic::{POTTERY_PAINTS, painted_pattern};
+
+    #[test]
+    fn tiny_virtual_vase_is_classified_well() {
+        let case = scene_case(SceneName::Vase, [160, 120], 1).unwrap();
+        let e = evaluate_photo(&case.label, &case.photo, &case.truth, &case.names, &case.display, 1).unwrap();
+        assert!(e.ours.accuracy > 0.9, "{:?}", e.ours);
+        let dir = tempfile::tempdir().unwrap();
+        save_case(dir.path(), &case, &e).unwrap();
+        let truth = LabelMap::load(&dir.path().join("truth.png")).unwrap();
+        assert_eq!(truth, e.dense_truth);
+    }
 
     #[test]
     fn assignment_finds_the_best_permutation() {

@@ -4,6 +4,7 @@
 pub mod classify;
 pub mod compensate;
 pub mod geometry;
+pub mod restore;
 
 use serde::Serialize;
 

@@ -42,6 +42,8 @@ struct ContourInfo {
 /// pointing to its successor so pairings made on the original contours stay valid.
 pub(crate) struct Arena {
     pos: Vec<[f64; 2]>,
+    /// Where each point started (for the displacement cap).
+    origin: Vec<[f64; 2]>,
     prev: Vec<u32>,
     next: Vec<u32>,
     contour: Vec<u32>,
@@ -75,6 +77,7 @@ impl Arena {
         let total: usize = patches.iter().flat_map(|p| &p.contours).map(|c| c.points.len()).sum();
         let mut a = Arena {
             pos: Vec::with_capacity(total),
+            origin: Vec::new(),
             prev: Vec::with_capacity(total),
             next: Vec::with_capacity(total),
             contour: Vec::with_capacity(total),
@@ -113,6 +116,7 @@ impl Arena {
                 });
             }
         }
+        a.origin = a.pos.clone();
         a
     }
 
@@ -337,6 +341,11 @@ impl Arena {
         // A proposal that barely moves the point cannot lower anything: its neighbours must
         // move first (and recompute this point's energy when they do).
         if dist(p, ph) < 1e-3 {
+            return 0.0;
+        }
+        // No point wanders further than max_shift_px from where it started: Laplacian flow
+        // otherwise eats thin stripes from their ends and shrinks small dots to nothing.
+        if dist(ph, self.origin[i]) > params.max_shift_px {
             return 0.0;
         }
         let kappa = self.kappa(i, params.neighbours, params.scale_px);
@@ -646,6 +655,7 @@ pub(crate) mod tests {
             .collect();
         let n = pts.len();
         let ar = Arena {
+            origin: pts.clone(),
             pos: pts,
             prev: (0..n).map(|k| ((k + n - 1) % n) as u32).collect(),
             next: (0..n).map(|k| ((k + 1) % n) as u32).collect(),

@@ -26,6 +26,7 @@ pub mod io;
 mod raster;
 mod region;
 mod render;
+pub mod synthetic;
 
 use thiserror::Error;
 
@@ -129,8 +130,15 @@ pub struct RestoreParams {
     pub max_hole_px: usize,
     /// Components smaller than this area (px) are merged into their surroundings.
     pub min_speck_px: usize,
+    /// No contour point moves further than this (px) from where it started (a guard the
+    /// paper does not have: without it, Laplacian flow retracts thin stripes from their ends
+    /// and shrinks lone dots to nothing).
+    pub max_shift_px: f64,
     /// Safety cap on the number of moves, per initial contour point.
     pub max_moves_per_point: usize,
+    /// Classes that stand for loss (e.g. bare clay showing through chips): inside a region
+    /// they count as its background, so paint contours close over them.
+    pub loss_classes: Vec<u8>,
 }
 
 impl Default for RestoreParams {
@@ -148,7 +156,9 @@ impl Default for RestoreParams {
             min_spacing_px: 0.2,
             max_hole_px: 64,
             min_speck_px: 8,
+            max_shift_px: 4.0,
             max_moves_per_point: 40,
+            loss_classes: Vec::new(),
         }
     }
 }
@@ -245,9 +255,17 @@ pub fn restore(
         hm.check(w, h, n_classes)?;
         hm.apply(&mut work);
     }
+    if let Some(&k) = params.loss_classes.iter().find(|&&k| k as usize >= n_classes) {
+        return Err(RestoreError::Background { background: k, classes: n_classes });
+    }
     let mut stats = RestoreStats::default();
     for (r, mask) in regions.iter().zip(&masks) {
         let background = r.background.unwrap_or_else(|| region::majority(&work, mask, n_classes));
+        for (l, &m) in work.iter_mut().zip(mask) {
+            if m && params.loss_classes.contains(l) {
+                *l = background;
+            }
+        }
         grid::restore_region(&mut work, &labels.data, w, h, mask, background, classes, params, &mut stats);
         stats.holes_filled += fill_holes(&mut work, w, h, mask, background, params.max_hole_px);
         stats.specks_removed += remove_specks(&mut work, w, h, mask, params.min_speck_px);

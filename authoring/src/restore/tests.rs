@@ -308,3 +308,16 @@ fn regions_leave_the_outside_alone() {
     }
     assert_ne!(out, l);
 }
+
+#[test]
+fn synthetic_damage_is_mostly_fixed() {
+    let s = synthetic::damaged_pattern(256, 192, 40.0, 4);
+    let out =
+        restore(&s.damaged, &classes(3), &[], None, &RestoreParams { grid: (2, 2), ..Default::default() })
+            .unwrap()
+            .labels;
+    let wrong = |m: &LabelMap| m.data.iter().zip(&s.pristine.data).filter(|(a, b)| a != b).count();
+    let (before, after) = (wrong(&s.damaged), wrong(&out));
+    assert!(before > 500, "{before}");
+    assert!(after * 4 < before * 3, "{before} -> {after}");
+}
