@@ -101,6 +101,21 @@ impl LinearImage {
     }
 }
 
+/// Opens any image file and refuses one that is not `width x height`, naming the file.
+pub fn open_sized(path: &Path, width: u32, height: u32) -> Result<image::DynamicImage, ImageError> {
+    let img = image::open(path).map_err(|source| ImageError::Read { path: path.into(), source })?;
+    if img.width() != width || img.height() != height {
+        return Err(ImageError::Size {
+            path: path.into(),
+            got_w: img.width(),
+            got_h: img.height(),
+            want_w: width,
+            want_h: height,
+        });
+    }
+    Ok(img)
+}
+
 pub fn check_dimensions(width: u32, height: u32) -> Result<(), ImageError> {
     if !(1..=32768).contains(&width) || !(1..=32768).contains(&height) {
         return Err(ImageError::BadDimensions { width, height });

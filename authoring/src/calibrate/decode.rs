@@ -157,18 +157,7 @@ impl PatternImages for CaptureImages<'_> {
 /// Loads an image as grey: 16-bit files are linear light (mean of channels); 8-bit files are
 /// decoded from sRGB, or taken as raw code values / 255 when `raw`.
 pub fn load_grey(path: &Path, width: u32, height: u32, raw: bool) -> Result<Vec<f32>, CalibrateError> {
-    use crate::imgio::ImageError;
-    let img = image::open(path).map_err(|source| ImageError::Read { path: path.into(), source })?;
-    if img.width() != width || img.height() != height {
-        return Err(ImageError::Size {
-            path: path.into(),
-            got_w: img.width(),
-            got_h: img.height(),
-            want_w: width,
-            want_h: height,
-        }
-        .into());
-    }
+    let img = crate::imgio::open_sized(path, width, height)?;
     let is16 = matches!(
         img.color(),
         image::ColorType::L16 | image::ColorType::La16 | image::ColorType::Rgb16 | image::ColorType::Rgba16

@@ -187,16 +187,7 @@ impl DotSignal {
     /// Reads a camera image of `width x height`; 16-bit RGB PNGs (our captures) are reduced
     /// straight from the decoded samples, anything else goes through [`LinearImage::load`].
     pub fn load(path: &std::path::Path, width: u32, height: u32) -> Result<Self, ImageError> {
-        let img = image::open(path).map_err(|source| ImageError::Read { path: path.into(), source })?;
-        if img.width() != width || img.height() != height {
-            return Err(ImageError::Size {
-                path: path.into(),
-                got_w: img.width(),
-                got_h: img.height(),
-                want_w: width,
-                want_h: height,
-            });
-        }
+        let img = crate::imgio::open_sized(path, width, height)?;
         match img {
             image::DynamicImage::ImageRgb16(buf) => {
                 let raw = buf.as_raw();

@@ -61,22 +61,8 @@ pub fn display_colours(palette: &Palette, picks: Option<&Picks>) -> Vec<[u8; 3]>
         .collect()
 }
 
-fn read(path: &Path) -> Result<image::DynamicImage, RestoreIoError> {
-    image::open(path).map_err(|source| ImageError::Read { path: path.into(), source }.into())
-}
-
-fn check_size(path: &Path, img: &image::DynamicImage, width: u32, height: u32) -> Result<(), RestoreIoError> {
-    if img.width() != width || img.height() != height {
-        return Err(ImageError::Size {
-            path: path.into(),
-            got_w: img.width(),
-            got_h: img.height(),
-            want_w: width,
-            want_h: height,
-        }
-        .into());
-    }
-    Ok(())
+fn read_sized(path: &Path, width: u32, height: u32) -> Result<image::DynamicImage, RestoreIoError> {
+    Ok(crate::imgio::open_sized(path, width, height)?)
 }
 
 /// Reads hint strokes (RGBA PNG; transparent = no stroke) against the classes' colours.
@@ -86,14 +72,13 @@ pub fn load_hints(
     height: u32,
     class_colours: &[[u8; 3]],
 ) -> Result<HintMap, RestoreIoError> {
-    let img = read(path)?;
+    let img = read_sized(path, width, height)?;
     if !img.color().has_alpha() {
         return Err(RestoreIoError::Invalid {
             path: path.into(),
             problem: "hint strokes need an alpha channel (transparent = no stroke)".into(),
         });
     }
-    check_size(path, &img, width, height)?;
     let px: Vec<[u8; 4]> = img.to_rgba8().pixels().map(|p| p.0).collect();
     hints_from_rgba(width, height, &px, class_colours)
         .map_err(|source| RestoreIoError::Restore { path: path.into(), source })
@@ -101,8 +86,7 @@ pub fn load_hints(
 
 /// Reads a region mask (any PNG; a pixel is inside when its grey value is at least 128).
 pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<bool>, RestoreIoError> {
-    let img = read(path)?;
-    check_size(path, &img, width, height)?;
+    let img = read_sized(path, width, height)?;
     Ok(img.to_luma8().pixels().map(|p| p.0[0] >= 128).collect())
 }
 
