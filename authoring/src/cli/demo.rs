@@ -14,7 +14,7 @@ use restage_authoring::stage_sim::{SceneConfig, SceneName};
 
 use super::simulate;
 
-#[derive(clap::Args, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct Args {
     /// Output folder for every step's results.
     #[arg(long, default_value = "out/demo")]
@@ -43,6 +43,11 @@ pub fn run(args: &Args) -> Result<()> {
     let start = Instant::now();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
+    // Files the demo writes (the bundle description) name other outputs by path; an absolute
+    // root keeps them valid whatever folder they are read from.
+    let out = std::fs::canonicalize(&args.out)
+        .with_context(|| format!("cannot resolve output folder {}", args.out.display()))?;
+    let args = &Args { out, ..args.clone() };
     let capture_dir = args.out.join("capture");
 
     // Step 1: the virtual stage writes a capture set (and its ground truth).
