@@ -43,6 +43,36 @@ pub struct CameraIntrinsics {
     pub cy: f64,
 }
 
+impl CameraIntrinsics {
+    /// Reads a camera calibration file (`camera.json` layout) and checks it is usable.
+    pub fn load(path: &Path) -> Result<Self, CaptureSetError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| CaptureSetError::Io { path: path.into(), source })?;
+        let cam: Self = serde_json::from_str(&text)
+            .map_err(|source| CaptureSetError::Parse { path: path.into(), source })?;
+        cam.check().map_err(|problem| CaptureSetError::Invalid { path: path.into(), problem })?;
+        Ok(cam)
+    }
+
+    /// Positive finite focal lengths, a principal point inside the image, a non-empty image.
+    pub fn check(&self) -> Result<(), String> {
+        if self.width == 0 || self.height == 0 {
+            return Err(format!("camera size {}x{} is empty", self.width, self.height));
+        }
+        if !(self.fx.is_finite() && self.fy.is_finite() && self.fx > 0.0 && self.fy > 0.0) {
+            return Err(format!("focal lengths fx={} fy={} must be positive pixels", self.fx, self.fy));
+        }
+        let inside = |c: f64, n: u32| c.is_finite() && (-0.5..=n as f64 - 0.5).contains(&c);
+        if !inside(self.cx, self.width) || !inside(self.cy, self.height) {
+            return Err(format!(
+                "principal point ({}, {}) lies outside the {}x{} image",
+                self.cx, self.cy, self.width, self.height
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Which axis of the projector image a structured-light pattern encodes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

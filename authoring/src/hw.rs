@@ -86,6 +86,42 @@ impl Clock for FakeClock {
     }
 }
 
+/// A stage assembled from separate devices: a camera, the projector outputs and the room
+/// light. The acquisition loop needs all three behind one value.
+#[derive(Debug)]
+pub struct Rig<C, P, L> {
+    pub camera: C,
+    pub projectors: P,
+    pub light: L,
+}
+
+impl<C: Camera, P, L> Camera for Rig<C, P, L> {
+    fn intrinsics(&self) -> CameraIntrinsics {
+        self.camera.intrinsics()
+    }
+    fn grab(&mut self) -> Result<LinearImage, HwError> {
+        self.camera.grab()
+    }
+}
+
+impl<C, P: ProjectorOutput, L> ProjectorOutput for Rig<C, P, L> {
+    fn projector_count(&self) -> usize {
+        self.projectors.projector_count()
+    }
+    fn resolution(&self, projector: usize) -> Result<(u32, u32), HwError> {
+        self.projectors.resolution(projector)
+    }
+    fn show(&mut self, projector: usize, frame: &RgbImage) -> Result<(), HwError> {
+        self.projectors.show(projector, frame)
+    }
+}
+
+impl<C, P, L: DiffuseLight> DiffuseLight for Rig<C, P, L> {
+    fn set_diffuse(&mut self, on: bool) -> Result<(), HwError> {
+        self.light.set_diffuse(on)
+    }
+}
+
 /// A frame of one colour, e.g. all black.
 pub fn uniform_frame(width: u32, height: u32, rgb: [u8; 3]) -> RgbImage {
     RgbImage::from_pixel(width, height, image::Rgb(rgb))

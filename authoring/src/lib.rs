@@ -8,6 +8,7 @@ pub mod classify;
 pub mod color;
 pub mod compensate;
 pub mod contact_sheet;
+pub mod devices;
 pub mod eval;
 pub mod export;
 pub mod hw;

@@ -14,6 +14,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Acquire a capture set on real hardware: V4L2 camera, projectors as full-screen outputs.
+    Capture(cli::capture::CaptureArgs),
     /// Calibrate the stage: capture set in, stage model out, with a PNG report and a PLY model.
     Calibrate(cli::calibrate::CalibrateArgs),
     /// Decode structured light to correspondence maps (our captures or OpenCV's order).
@@ -55,6 +57,7 @@ fn main() -> Result<()> {
         .with_writer(std::io::stderr)
         .init();
     match Cli::parse().command {
+        Command::Capture(args) => cli::capture::run(&args),
         Command::Calibrate(args) => cli::calibrate::run(args),
         Command::Decode(args) => cli::decode::run(args),
         Command::Eval(args) => cli::eval::run(args),

@@ -3,6 +3,7 @@
 
 pub mod bundle;
 pub mod calibrate;
+pub mod capture;
 pub mod classify;
 pub mod compensate;
 pub mod decode;

@@ -23,6 +23,37 @@ impl std::str::FromStr for Size {
     }
 }
 
+/// The patterns to capture; the same options for the virtual stage and real hardware.
+#[derive(clap::Args, Debug)]
+pub struct PatternArgs {
+    /// Dot-grid spacing in projector pixels (spacing^2 dot images per projector).
+    #[arg(long, default_value_t = 16)]
+    pub dot_spacing: u32,
+    /// Phase-shift period in projector pixels.
+    #[arg(long, default_value_t = 16)]
+    pub phase_period: u32,
+    #[arg(long, default_value_t = 8)]
+    pub phase_steps: u32,
+    /// Gray-ramp levels per channel.
+    #[arg(long, default_value_t = 17)]
+    pub ramp_levels: u32,
+}
+
+impl PatternArgs {
+    /// The acquisition settings, checked, with `settle` between showing and grabbing.
+    pub fn config(&self, settle: std::time::Duration) -> Result<AcquireConfig> {
+        let acq = AcquireConfig {
+            dot_spacing: self.dot_spacing,
+            phase_period: self.phase_period,
+            phase_steps: self.phase_steps,
+            ramp_levels: self.ramp_levels,
+            settle,
+        };
+        acq.validate()?;
+        Ok(acq)
+    }
+}
+
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Built-in object: vase, bowl or jar.
@@ -43,17 +74,8 @@ pub struct Args {
     /// Number of projectors around the object.
     #[arg(long, default_value_t = 3)]
     pub projectors: u32,
-    /// Dot-grid spacing in projector pixels (spacing^2 dot images per projector).
-    #[arg(long, default_value_t = 16)]
-    pub dot_spacing: u32,
-    /// Phase-shift period in projector pixels.
-    #[arg(long, default_value_t = 16)]
-    pub phase_period: u32,
-    #[arg(long, default_value_t = 8)]
-    pub phase_steps: u32,
-    /// Gray-ramp levels per channel.
-    #[arg(long, default_value_t = 17)]
-    pub ramp_levels: u32,
+    #[command(flatten)]
+    pub patterns: PatternArgs,
     /// Simulate the object in its pristine state (no deterioration).
     #[arg(long)]
     pub pristine: bool,
@@ -70,14 +92,7 @@ impl Args {
             deteriorate: !self.pristine,
         };
         scene.validate()?;
-        let acq = AcquireConfig {
-            dot_spacing: self.dot_spacing,
-            phase_period: self.phase_period,
-            phase_steps: self.phase_steps,
-            ramp_levels: self.ramp_levels,
-            ..AcquireConfig::default()
-        };
-        acq.validate()?;
+        let acq = self.patterns.config(AcquireConfig::default().settle)?;
         Ok((scene, acq))
     }
 }
