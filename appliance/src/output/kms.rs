@@ -333,7 +333,8 @@ impl KmsOutput {
     }
 
     /// Finds the mode of `size` on head `k`'s connector and makes its two scan-out buffers.
-    fn prepare(&mut self, k: usize, (w, h): (u32, u32), probe: bool) -> Result<(), KmsError> {
+    /// The mode head `k` shows `w x h` frames in, or why it cannot.
+    fn find_mode(&self, k: usize, (w, h): (u32, u32), probe: bool) -> Result<Mode, KmsError> {
         let info = self.card.get_connector(self.heads[k].conn, probe).map_err(ioctl("get connector"))?;
         let name = self.heads[k].name.clone();
         if info.state() != connector::State::Connected {
@@ -346,7 +347,12 @@ impl KmsOutput {
             offered.dedup();
             KmsError::NoMode { connector: name.clone(), width: w, height: h, available: offered.join(", ") }
         })?;
-        let mode = info.modes()[i];
+        Ok(info.modes()[i])
+    }
+
+    fn prepare(&mut self, k: usize, (w, h): (u32, u32), probe: bool) -> Result<(), KmsError> {
+        let mode = self.find_mode(k, (w, h), probe)?;
+        let name = self.heads[k].name.clone();
         // Buffers of the right size are kept (a projector set up again after a hot-plug shows
         // what its front buffer holds: the current frame, written there while it was gone).
         let keep = self.heads[k].bufs.first().is_some_and(|b| b.db.size() == (w, h));
@@ -386,7 +392,7 @@ impl KmsOutput {
         }
         head.modeset = true;
         head.up = true;
-        tracing::info!(connector = %name, mode = ?summaries[i], "projector mode chosen");
+        tracing::info!(connector = %name, mode = ?ModeSummary::of(&mode), "projector mode chosen");
         Ok(())
     }
 
@@ -736,6 +742,11 @@ impl Output for KmsOutput {
         }
         if self.sizes.as_deref() == Some(sizes) && self.heads.iter().all(|h| !h.bufs.is_empty()) {
             return Ok(());
+        }
+        // Every projector must be able to show its frames before anything changes: a bundle
+        // the stage cannot show is refused with the current picture left as it is.
+        for (k, &size) in sizes.iter().enumerate() {
+            self.find_mode(k, size, false).map_err(|e| self.err(e))?;
         }
         self.sizes = Some(sizes.to_vec());
         for (k, &size) in sizes.iter().enumerate() {
