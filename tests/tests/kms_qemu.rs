@@ -4,8 +4,9 @@
 //! test presses the button through that port and reads every head's picture with QMP
 //! `screendump`: the original scene after start, the restoration pixel for pixel after a
 //! press, the original again after the exposure timer, a projector unplugged and plugged back
-//! (hot-plug, through the connector's sysfs `status`), and every head black (not the console)
-//! after SIGKILL. It prints the start-to-first-light and press-to-flip figures from the
+//! (hot-plug, through the connector's sysfs `status`), a bundle of a size no head offers
+//! refused without advancing the anti-rollback record, a second DRM master refused, and
+//! every head black (not the console) after SIGKILL. It prints the start-to-first-light and press-to-flip figures from the
 //! appliance's flip-event log.
 //!
 //! Needs `qemu-system-x86_64` and the tools of `tests/qemu/prepare.sh` (apt packages
@@ -29,6 +30,8 @@ const H: u32 = 480;
 const HEADS: usize = 3;
 /// Length of a showing (the exposure timer), seconds.
 const SHOWING_S: u32 = 3;
+/// Width of a bundle no head can show (no standard mode is 624 wide).
+const BAD_W: u32 = 624;
 const PACKAGES: &str = "qemu-system-x86 busybox-static cpio kmod xz-utils";
 
 fn spec() -> ExampleSpec {
@@ -43,8 +46,7 @@ fn payload(dir: &Path, atomic: bool) {
     let spec = spec();
     let key = signing_key_from_seed([7; 32]);
     std::fs::write(dir.join("trust/test.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
-    let mut info = example_info(&spec);
-    info.policy = ExposurePolicy {
+    let policy = ExposurePolicy {
         max_showing_s: SHOWING_S,
         cooldown_s: 0,
         daily_budget_lxh: 1e6,
@@ -52,14 +54,21 @@ fn payload(dir: &Path, atomic: bool) {
         warn_at: vec![0.75, 0.9],
         idle: IdleMode::Scene("original".into()),
     };
-    let mut w = BundleWriter::new(info, example_certificate(&spec));
-    for (s, (id, kind)) in
-        [("original", SceneKind::Original), ("restored-1", SceneKind::Restoration)].into_iter().enumerate()
-    {
-        let frames = (0..HEADS).map(|k| example_frame(&spec, s, k)).collect();
-        w.add_scene(id, id, kind, frames).unwrap();
+    // The bundle played, and a newer one of a frame size no head offers.
+    let odd = ExampleSpec { width: BAD_W, version: spec.version + 1, ..spec.clone() };
+    for (spec, file) in [(&spec, "state/active.bundle"), (&odd, "bad.bundle")] {
+        let mut info = example_info(spec);
+        info.policy = policy.clone();
+        let mut w = BundleWriter::new(info, example_certificate(spec));
+        for (s, (id, kind)) in [("original", SceneKind::Original), ("restored-1", SceneKind::Restoration)]
+            .into_iter()
+            .enumerate()
+        {
+            let frames = (0..HEADS).map(|k| example_frame(spec, s, k)).collect();
+            w.add_scene(id, id, kind, frames).unwrap();
+        }
+        w.write(&key, std::fs::File::create(dir.join(file)).unwrap()).unwrap();
     }
-    w.write(&key, std::fs::File::create(dir.join("state/active.bundle")).unwrap()).unwrap();
     let config = "trust_dir = \"/restage/trust\"\nstate_dir = \"/var/lib/restage\"\n\
                   [player]\nfade_ms = 300\nfade_fps = 10\nmin_press_interval_ms = 100\n\
                   [output]\nkind = \"kms\"\ncard = \"/dev/dri/card0\"\n\
@@ -386,6 +395,17 @@ fn scenario(atomic: bool) {
         "the second appliance did not name the DRM master problem"
     );
     heads_show(&mut qmp, &shots, &original, Duration::from_secs(2)).expect("the first appliance still shows");
+
+    // A newer bundle whose frame size no projector offers is refused, naming the connector
+    // and what it offers; the picture stays, and the refusal does not advance the
+    // anti-rollback record (the current bundle, an older version, still loads afterwards).
+    con.command("load bad");
+    con.wait_for(&["refused", &format!("offers no {BAD_W}x{H} mode")], Duration::from_secs(30));
+    heads_show(&mut qmp, &shots, &original, Duration::from_secs(2))
+        .expect("the picture after a refused bundle");
+    con.command("load good");
+    con.wait_for(&["bundle verified and loaded", "version=3"], Duration::from_secs(30));
+    heads_show(&mut qmp, &shots, &original, Duration::from_secs(10)).expect("the original after reloading");
 
     // SIGKILL: no chance to blank. The kernel restores its fbdev console framebuffer, which
     // fbcon=map:9 keeps empty: every head must be black, not console text.
