@@ -17,7 +17,6 @@ const NONE: u32 = u32::MAX;
 /// "away from d*" and freeze at R = 1/beta.
 pub(crate) const SPACING_DEAD_BAND: f64 = 0.5;
 
-
 /// One cell's pixels, as local row-major buffers of `w` x `h`.
 pub(crate) struct Cell<'a> {
     /// Current labels (after hints and earlier cells).
@@ -131,7 +130,8 @@ impl Arena {
                     [(p[0] + q[0]) * 0.5, (p[1] + q[1]) * 0.5]
                 })
                 .collect();
-            let anchor: Vec<bool> = (0..n).map(|k| a.anchor[first + k] || a.anchor[first + (k + 1) % n]).collect();
+            let anchor: Vec<bool> =
+                (0..n).map(|k| a.anchor[first + k] || a.anchor[first + (k + 1) % n]).collect();
             a.pos[first..first + n].copy_from_slice(&pos);
             a.anchor[first..first + n].copy_from_slice(&anchor);
         }

@@ -364,9 +364,8 @@ fn loss_across_a_band_edge_is_rebuilt() {
     // Bare clay (class 2, a loss class) in a chip across the band's top edge: each side
     // grows into the chip, and the band's edge comes back where it ran.
     let pristine = map(96, 56, band);
-    let chipped = map(96, 56, |x, y| {
-        if (x as f64 - 48.0).hypot(y as f64 - 20.0) < 6.0 { 2 } else { band(x, y) }
-    });
+    let chipped =
+        map(96, 56, |x, y| if (x as f64 - 48.0).hypot(y as f64 - 20.0) < 6.0 { 2 } else { band(x, y) });
     let p = RestoreParams { loss_classes: vec![2], ..Default::default() };
     let out = run(&chipped, &p);
     let (before, after) = (changed(&chipped, &pristine), changed(&out, &pristine));
