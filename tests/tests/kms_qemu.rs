@@ -4,7 +4,8 @@
 //! test presses the button through that port and reads every head's picture with QMP
 //! `screendump`: the original scene after start, the restoration pixel for pixel after a
 //! press, the original again after the exposure timer, a projector unplugged and plugged back
-//! (hot-plug, through the connector's sysfs `status`), a bundle of a size no head offers
+//! (hot-plug, through the connector's sysfs `status`), a DRM change uevent re-probing and
+//! keeping every head, a bundle of a size no head offers
 //! refused without advancing the anti-rollback record, a second DRM master refused, a start
 //! with one projector unplugged (set up when it appears), and every head black (not the
 //! console) after SIGKILL. It prints the start-to-first-light and press-to-flip figures from the
@@ -396,6 +397,14 @@ fn scenario(atomic: bool) {
         "the second appliance did not name the DRM master problem"
     );
     heads_show(&mut qmp, &shots, &original, Duration::from_secs(2)).expect("the first appliance still shows");
+
+    // The uevent path (virtio-gpu sends no uevent for the sysfs toggles above, so the
+    // connector-state watch noticed those): a DRM change uevent (here a synthetic one, as
+    // `udevadm trigger` sends; the kernel gives synthetic events no HOTPLUG=1) makes the
+    // appliance re-probe, and with nothing changed every head is kept as it is.
+    con.command("uevent");
+    con.wait_for(&["DRM change uevent"], Duration::from_secs(20));
+    con.wait_for(&["connectors re-probed", "plan=[Keep, Keep, Keep]"], Duration::from_secs(20));
 
     // A newer bundle whose frame size no projector offers is refused, naming the connector
     // and what it offers; the picture stays, and the refusal does not advance the
