@@ -815,7 +815,7 @@ impl Drop for KmsOutput {
     }
 }
 
-/// Listens for kernel uevents and announces DRM HOTPLUG ones to the event loop. Runs on its
+/// Listens for kernel uevents and announces DRM change (HOTPLUG) ones to the event loop. Runs on its
 /// own thread for the program's life; without the socket (no permission) hot-plug is off.
 fn start_hotplug_listener(tx: InputSender) {
     use nix::sys::socket::{
@@ -851,7 +851,7 @@ fn start_hotplug_listener(tx: InputSender) {
                 }
             };
             if is_drm_hotplug(&buf[..n]) {
-                tracing::info!("HOTPLUG uevent");
+                tracing::info!("DRM change uevent (hot-plug)");
                 if tx.blocking_send(InputEvent::OutputsChanged).is_err() {
                     return;
                 }
@@ -891,11 +891,14 @@ fn start_connector_poll(path: &Path, conns: Vec<connector::Handle>, tx: InputSen
     });
 }
 
-/// Whether a kernel uevent (NUL-separated `KEY=VALUE` fields after the header) is a DRM
-/// hot-plug.
+/// Whether a kernel uevent (a `ACTION@DEVPATH` header, then NUL-separated `KEY=VALUE`
+/// fields) asks for a re-probe: a DRM `change` event. That is the drivers' HOTPLUG=1 event,
+/// and also what an operator's `udevadm trigger --action=change --subsystem-match=drm` (or a
+/// write to the card's sysfs `uevent`) sends; re-probing is idempotent, so any of them is
+/// worth one.
 pub fn is_drm_hotplug(msg: &[u8]) -> bool {
     let fields: Vec<&[u8]> = msg.split(|&b| b == 0).collect();
-    fields.contains(&&b"SUBSYSTEM=drm"[..]) && fields.contains(&&b"HOTPLUG=1"[..])
+    fields.contains(&&b"SUBSYSTEM=drm"[..]) && fields.contains(&&b"ACTION=change"[..])
 }
 
 #[cfg(test)]
@@ -998,9 +1001,13 @@ mod tests {
     fn recognises_drm_hotplug_uevents_only() {
         let hp = b"change@/devices/pci0000:00/0000:00:02.0/drm/card0\0ACTION=change\0DEVPATH=/devices/x\0SUBSYSTEM=drm\0HOTPLUG=1\0DEVNAME=/dev/dri/card0\0SEQNUM=1\0";
         assert!(is_drm_hotplug(hp));
-        let other = b"add@/devices/x\0ACTION=add\0SUBSYSTEM=usb\0HOTPLUG=1\0";
+        // udevadm trigger / a sysfs `uevent` write: a change without HOTPLUG=1.
+        let synth = b"change@/devices/x/drm/card0\0ACTION=change\0SUBSYSTEM=drm\0SYNTH_UUID=0\0";
+        assert!(is_drm_hotplug(synth));
+        let other = b"change@/devices/x\0ACTION=change\0SUBSYSTEM=usb\0HOTPLUG=1\0";
         assert!(!is_drm_hotplug(other));
-        assert!(!is_drm_hotplug(b"change@/x\0SUBSYSTEM=drm\0"));
+        // A card appearing or going away is not a re-probe of ours.
+        assert!(!is_drm_hotplug(b"add@/x\0ACTION=add\0SUBSYSTEM=drm\0"));
         assert!(!is_drm_hotplug(b""));
     }
 
