@@ -168,7 +168,7 @@ impl Gpu {
     }
 
     fn check(&self, what: &'static str, need: u64) -> Result<(), GpuError> {
-        let max = (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
+        let max = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
         if need > max { Err(GpuError::TooLarge { what, need, max }) } else { Ok(()) }
     }
 
@@ -264,19 +264,6 @@ impl Gpu {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn device_names_parse() {
-        assert_eq!("GPU".parse::<Device>().unwrap(), Device::Gpu);
-        assert_eq!("cpu".parse::<Device>().unwrap(), Device::Cpu);
-        assert!("tpu".parse::<Device>().unwrap_err().contains("auto, cpu, gpu"));
-        assert_eq!(select(Device::Cpu).unwrap().map(|g| g.info.name.clone()), None);
-    }
-}
-
 /// For tests of the GPU path: the GPU, or `None` when there is none and the environment says
 /// that is acceptable (`RESTAGE_NO_GPU_OK=1`). Without that variable a missing adapter fails
 /// the test, so CI (which installs lavapipe) cannot skip the comparison silently.
@@ -291,5 +278,18 @@ pub fn for_tests() -> Option<&'static Gpu> {
             "no GPU adapter ({e}): install mesa-vulkan-drivers (lavapipe) or set RESTAGE_NO_GPU_OK=1 \
              to skip the GPU comparisons"
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_names_parse() {
+        assert_eq!("GPU".parse::<Device>().unwrap(), Device::Gpu);
+        assert_eq!("cpu".parse::<Device>().unwrap(), Device::Cpu);
+        assert!("tpu".parse::<Device>().unwrap_err().contains("auto, cpu, gpu"));
+        assert_eq!(select(Device::Cpu).unwrap().map(|g| g.info.name.clone()), None);
     }
 }
