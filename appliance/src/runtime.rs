@@ -207,13 +207,10 @@ impl App {
             &mut self.ledger,
             now.unix_ms,
             self.config.player.idle,
+            |show| self.output.set_modes(&show.projectors).map_err(|e| e.to_string()),
         );
         match result {
             Ok(loaded) => {
-                if let Err(e) = self.output.set_modes(&loaded.show.projectors) {
-                    let msg = format!("bundle {} refused: the outputs cannot show it: {e}", path.display());
-                    return Err(self.refused(msg));
-                }
                 let _ = self.ledger.log_event(
                     now.unix_ms,
                     "load",

@@ -46,6 +46,11 @@ if [ -z "$kver" ] || [ ! -s "$cache/$kver/vmlinux" ]; then
     [ -s "$tmp/k/vmlinux" ] || { echo "prepare.sh: no vmlinux found in $img" >&2; exit 3; }
     # Only the modules the machine loads are kept (the package has 400 MB of them).
     depmod -b "$tmp/k" "$kver"
+    keep="$(for m in virtio_pci virtio-gpu; do
+        modprobe -d "$tmp/k" -S "$kver" --show-depends "$m" | awk '$1 == "insmod" { print $2 }'
+    done | sort -u)"
+    find "$tmp/k/lib/modules/$kver/kernel" -name '*.ko*' -type f | sort | comm -23 - <(echo "$keep") | xargs rm -f
+    depmod -b "$tmp/k" "$kver"
     rm -rf "$cache/$kver"
     mv "$tmp/k" "$cache/$kver"
     rm -rf "$tmp"

@@ -4,8 +4,11 @@
 //! test presses the button through that port and reads every head's picture with QMP
 //! `screendump`: the original scene after start, the restoration pixel for pixel after a
 //! press, the original again after the exposure timer, a projector unplugged and plugged back
-//! (hot-plug, through the connector's sysfs `status`), and every head black (not the console)
-//! after SIGKILL. It prints the start-to-first-light and press-to-flip figures from the
+//! (hot-plug, through the connector's sysfs `status`), a DRM change uevent re-probing and
+//! keeping every head, a bundle of a size no head offers
+//! refused without advancing the anti-rollback record, a second DRM master refused, a start
+//! with one projector unplugged (set up when it appears), and every head black (not the
+//! console) after SIGKILL. It prints the start-to-first-light and press-to-flip figures from the
 //! appliance's flip-event log.
 //!
 //! Needs `qemu-system-x86_64` and the tools of `tests/qemu/prepare.sh` (apt packages
@@ -29,6 +32,8 @@ const H: u32 = 480;
 const HEADS: usize = 3;
 /// Length of a showing (the exposure timer), seconds.
 const SHOWING_S: u32 = 3;
+/// Width of a bundle no head can show (no standard mode is 624 wide).
+const BAD_W: u32 = 624;
 const PACKAGES: &str = "qemu-system-x86 busybox-static cpio kmod xz-utils";
 
 fn spec() -> ExampleSpec {
@@ -43,8 +48,7 @@ fn payload(dir: &Path, atomic: bool) {
     let spec = spec();
     let key = signing_key_from_seed([7; 32]);
     std::fs::write(dir.join("trust/test.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
-    let mut info = example_info(&spec);
-    info.policy = ExposurePolicy {
+    let policy = ExposurePolicy {
         max_showing_s: SHOWING_S,
         cooldown_s: 0,
         daily_budget_lxh: 1e6,
@@ -52,14 +56,21 @@ fn payload(dir: &Path, atomic: bool) {
         warn_at: vec![0.75, 0.9],
         idle: IdleMode::Scene("original".into()),
     };
-    let mut w = BundleWriter::new(info, example_certificate(&spec));
-    for (s, (id, kind)) in
-        [("original", SceneKind::Original), ("restored-1", SceneKind::Restoration)].into_iter().enumerate()
-    {
-        let frames = (0..HEADS).map(|k| example_frame(&spec, s, k)).collect();
-        w.add_scene(id, id, kind, frames).unwrap();
+    // The bundle played, and a newer one of a frame size no head offers.
+    let odd = ExampleSpec { width: BAD_W, version: spec.version + 1, ..spec.clone() };
+    for (spec, file) in [(&spec, "state/active.bundle"), (&odd, "bad.bundle")] {
+        let mut info = example_info(spec);
+        info.policy = policy.clone();
+        let mut w = BundleWriter::new(info, example_certificate(spec));
+        for (s, (id, kind)) in [("original", SceneKind::Original), ("restored-1", SceneKind::Restoration)]
+            .into_iter()
+            .enumerate()
+        {
+            let frames = (0..HEADS).map(|k| example_frame(spec, s, k)).collect();
+            w.add_scene(id, id, kind, frames).unwrap();
+        }
+        w.write(&key, std::fs::File::create(dir.join(file)).unwrap()).unwrap();
     }
-    w.write(&key, std::fs::File::create(dir.join("state/active.bundle")).unwrap()).unwrap();
     let config = "trust_dir = \"/restage/trust\"\nstate_dir = \"/var/lib/restage\"\n\
                   [player]\nfade_ms = 300\nfade_fps = 10\nmin_press_interval_ms = 100\n\
                   [output]\nkind = \"kms\"\ncard = \"/dev/dri/card0\"\n\
@@ -162,14 +173,39 @@ impl Qmp {
     }
 }
 
-/// Polls the heads until each equals `want[k]` (RGB8, W x H) or the timeout passes; returns
-/// whether they did, and the last mismatch.
-fn heads_show(qmp: &mut Qmp, dir: &Path, want: &[Vec<u8>], timeout: Duration) -> Result<(), String> {
+/// Checks that `heads` (all when `None`) show `want[k]`, polling until `timeout` (see
+/// `these_heads_show`); panics naming `what` otherwise. With `RESTAGE_QEMU_SHOTS=DIR` the
+/// last screendumps are kept as `DIR/<variant>-<n>-<what>-head<k>.png` (pass or fail), for
+/// people to look at.
+fn expect_heads(
+    qmp: &mut Qmp,
+    dir: &Path,
+    heads: Option<&[usize]>,
+    want: &[Vec<u8>],
+    timeout: Duration,
+    what: &str,
+) {
     let all: Vec<usize> = (0..want.len()).collect();
-    these_heads_show(qmp, dir, &all, want, timeout)
+    let heads = heads.unwrap_or(&all);
+    let result = these_heads_show(qmp, dir, heads, want, timeout);
+    if let Ok(keep) = std::env::var("RESTAGE_QEMU_SHOTS") {
+        static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let variant = dir.file_name().and_then(|f| f.to_str()).unwrap_or("shots");
+        let slug: String = what.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '-' }).collect();
+        std::fs::create_dir_all(&keep).unwrap();
+        for &k in heads {
+            let to = Path::new(&keep).join(format!("{variant}-{n:02}-{slug}-head{k}.png"));
+            let _ = std::fs::copy(dir.join(format!("head{k}.png")), to);
+        }
+    }
+    if let Err(e) = result {
+        panic!("{what}: {e}");
+    }
 }
 
-/// `heads_show` for the heads in `heads` only.
+/// Polls the heads in `heads` until each equals `want[k]` (RGB8, W x H) or the timeout
+/// passes; returns the last mismatch.
 fn these_heads_show(
     qmp: &mut Qmp,
     dir: &Path,
@@ -323,9 +359,16 @@ fn scenario(atomic: bool) {
     };
     let (original, restored) = (scene(0), scene(1));
     assert_ne!(original, restored);
-    let shots = d.join("shots");
+    let shots = d.join(if atomic { "atomic" } else { "legacy" });
     std::fs::create_dir_all(&shots).unwrap();
-    heads_show(&mut qmp, &shots, &original, Duration::from_secs(10)).expect("the original scene after start");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &original,
+        Duration::from_secs(10),
+        "the original scene after start",
+    );
 
     // The button box: PING until PONG (bytes sent before the guest opens the port are lost).
     let mut button = UnixStream::connect(&serial_path).expect("serial socket");
@@ -345,12 +388,25 @@ fn scenario(atomic: bool) {
     let press = con.wait_for(&["press", "source=\"serial\""], Duration::from_secs(20));
     let flip = con.wait_for(&["page flip complete", "lit=true"], Duration::from_secs(20));
     // The showing lasts SHOWING_S; screendumps take a fraction of that.
-    heads_show(&mut qmp, &shots, &restored, Duration::from_millis(500)).expect("the restoration after PRESS");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &restored,
+        Duration::from_millis(500),
+        "the restoration after PRESS",
+    );
 
     // The exposure timer ends the showing (then a 0.3 s fade) and the original returns.
     con.wait_for(&["showing ended", "timer"], Duration::from_secs(20));
-    heads_show(&mut qmp, &shots, &original, Duration::from_secs(20))
-        .expect("the original after the exposure timer");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &original,
+        Duration::from_secs(20),
+        "the original after the exposure timer",
+    );
 
     // Hot-plug: projector 2 disappears (its connector forced off through sysfs; the
     // appliance notices by its HOTPLUG uevent or, as virtio-gpu sends none for this, by its
@@ -365,17 +421,35 @@ fn scenario(atomic: bool) {
     // A press while it is gone: the other two show the restoration.
     button.write_all(b"PRESS\n").unwrap();
     con.wait_for(&["page flip complete", "heads=2", "lit=true"], Duration::from_secs(20));
-    these_heads_show(&mut qmp, &shots, &[0, 2], &restored, Duration::from_millis(500))
-        .expect("the restoration on the remaining heads");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        Some(&[0, 2]),
+        &restored,
+        Duration::from_millis(500),
+        "the restoration on the remaining heads",
+    );
     // It comes back during the showing and is set up again, without a restart, with the
     // frame it should show now (the restoration), not the one it had when it left.
     con.command("plug Virtual-2");
     con.wait_for(&["set up again after hot-plug", "Virtual-2"], Duration::from_secs(20));
-    these_heads_show(&mut qmp, &shots, &[1], &restored, Duration::from_millis(500))
-        .expect("the returning head shows the current scene");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        Some(&[1]),
+        &restored,
+        Duration::from_millis(500),
+        "the returning head shows the current scene",
+    );
     con.wait_for(&["showing ended", "timer"], Duration::from_secs(20));
-    heads_show(&mut qmp, &shots, &original, Duration::from_secs(20))
-        .expect("the original on all heads after re-plug");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &original,
+        Duration::from_secs(20),
+        "the original on all heads after re-plug",
+    );
 
     // A second appliance on the same card is refused (one DRM master) and the first keeps on.
     con.command("second");
@@ -385,15 +459,79 @@ fn scenario(atomic: bool) {
         con.seen.iter().any(|l| l.contains("cannot become DRM master")),
         "the second appliance did not name the DRM master problem"
     );
-    heads_show(&mut qmp, &shots, &original, Duration::from_secs(2)).expect("the first appliance still shows");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &original,
+        Duration::from_secs(2),
+        "the first appliance still shows",
+    );
+
+    // The uevent path (virtio-gpu sends no uevent for the sysfs toggles above, so the
+    // connector-state watch noticed those): a DRM change uevent (here a synthetic one, as
+    // `udevadm trigger` sends; the kernel gives synthetic events no HOTPLUG=1) makes the
+    // appliance re-probe, and with nothing changed every head is kept as it is.
+    con.command("uevent");
+    con.wait_for(&["DRM change uevent"], Duration::from_secs(20));
+    con.wait_for(&["connectors re-probed", "plan=[Keep, Keep, Keep]"], Duration::from_secs(20));
+
+    // A newer bundle whose frame size no projector offers is refused, naming the connector
+    // and what it offers; the picture stays, and the refusal does not advance the
+    // anti-rollback record (the current bundle, an older version, still loads afterwards).
+    con.command("load bad");
+    con.wait_for(&["refused", &format!("offers no {BAD_W}x{H} mode")], Duration::from_secs(30));
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &original,
+        Duration::from_secs(2),
+        "the picture after a refused bundle",
+    );
+    con.command("load good");
+    con.wait_for(&["bundle verified and loaded", "version=3"], Duration::from_secs(30));
+    expect_heads(&mut qmp, &shots, None, &original, Duration::from_secs(10), "the original after reloading");
+
+    // A projector off when the appliance starts: the others play, and it is set up when it
+    // appears (no refusal to start, no restart needed).
+    con.command("unplug Virtual-3");
+    con.wait_for(&["projector lost", "Virtual-3"], Duration::from_secs(20));
+    con.command("restart");
+    con.wait_for(&["projector not connected", "Virtual-3"], Duration::from_secs(60));
+    con.wait_for(&["appliance running"], Duration::from_secs(60));
+    expect_heads(
+        &mut qmp,
+        &shots,
+        Some(&[0, 1]),
+        &original,
+        Duration::from_secs(10),
+        "the original on the connected heads after a start without projector 3",
+    );
+    con.command("plug Virtual-3");
+    con.wait_for(&["set up again after hot-plug", "Virtual-3"], Duration::from_secs(20));
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &original,
+        Duration::from_secs(5),
+        "all three heads once projector 3 appears",
+    );
 
     // SIGKILL: no chance to blank. The kernel restores its fbdev console framebuffer, which
     // fbcon=map:9 keeps empty: every head must be black, not console text.
     con.command("kill");
     con.wait_for(&["GUEST: appliance killed"], Duration::from_secs(20));
     let black = vec![0u8; (W * H * 3) as usize];
-    heads_show(&mut qmp, &shots, &vec![black; HEADS], Duration::from_secs(10))
-        .expect("every head black after SIGKILL");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &vec![black; HEADS],
+        Duration::from_secs(10),
+        "every head black after SIGKILL",
+    );
     con.command("off");
 
     let (start_us, first_us) = (field(&started, "mono_us").unwrap(), field(&first, "flip_mono_us").unwrap());
@@ -417,10 +555,10 @@ fn scenario(atomic: bool) {
     // Where start-up time goes (guest wall clock of the log lines).
     let at = |what: &str| con.seen.iter().find(|l| l.contains(what)).and_then(|l| stamp_s(l));
     if let (Some(a), Some(m), Some(l), Some(f)) =
-        (at("appliance starting"), at("DRM master"), at("bundle verified and loaded"), at("first light"))
+        (at("appliance starting"), at("DRM master"), at("projector mode chosen"), at("first light"))
     {
         eprintln!(
-            "FIGURES start-up breakdown: to DRM master {:.0} ms, then ledger + bundle verify {:.0} ms, then modes + first flip {:.0} ms",
+            "FIGURES start-up breakdown: to DRM master {:.0} ms, then ledger open + bundle verification {:.0} ms, then modes + first flip {:.0} ms",
             (m - a) * 1000.0,
             (l - m) * 1000.0,
             (f - l) * 1000.0

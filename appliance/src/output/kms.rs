@@ -114,8 +114,8 @@ pub struct ConnectorSummary {
     pub connected: bool,
 }
 
-/// The connector index of every projector: by name in the configured order, or, with no names
-/// configured, every connected connector in the card's order.
+/// The connector index of every projector: by name in the configured order (connected now or
+/// not), or, with no names configured, every connected connector in the card's order.
 pub fn map_connectors(wanted: &[String], available: &[ConnectorSummary]) -> Result<Vec<usize>, KmsError> {
     let names = || available.iter().map(|c| c.name.as_str()).collect::<Vec<_>>().join(", ");
     if wanted.is_empty() {
@@ -132,14 +132,13 @@ pub fn map_connectors(wanted: &[String], available: &[ConnectorSummary]) -> Resu
             if !seen.insert(name.as_str()) {
                 return Err(KmsError::Duplicate { name: name.clone() });
             }
-            let i = available
+            // A named connector with nothing connected is kept: its projector may be off or
+            // unplugged now and is set up when it appears (refusing would turn a projector
+            // off at boot into a service that never starts).
+            available
                 .iter()
                 .position(|c| c.name == *name)
-                .ok_or_else(|| KmsError::UnknownConnector { name: name.clone(), available: names() })?;
-            if !available[i].connected {
-                return Err(KmsError::NotConnected { name: name.clone() });
-            }
-            Ok(i)
+                .ok_or_else(|| KmsError::UnknownConnector { name: name.clone(), available: names() })
         })
         .collect()
 }
@@ -333,7 +332,8 @@ impl KmsOutput {
     }
 
     /// Finds the mode of `size` on head `k`'s connector and makes its two scan-out buffers.
-    fn prepare(&mut self, k: usize, (w, h): (u32, u32), probe: bool) -> Result<(), KmsError> {
+    /// The mode head `k` shows `w x h` frames in, or why it cannot.
+    fn find_mode(&self, k: usize, (w, h): (u32, u32), probe: bool) -> Result<Mode, KmsError> {
         let info = self.card.get_connector(self.heads[k].conn, probe).map_err(ioctl("get connector"))?;
         let name = self.heads[k].name.clone();
         if info.state() != connector::State::Connected {
@@ -346,18 +346,20 @@ impl KmsOutput {
             offered.dedup();
             KmsError::NoMode { connector: name.clone(), width: w, height: h, available: offered.join(", ") }
         })?;
-        let mode = info.modes()[i];
-        // Buffers of the right size are kept (a projector set up again after a hot-plug shows
-        // what its front buffer holds: the current frame, written there while it was gone).
-        let keep = self.heads[k].bufs.first().is_some_and(|b| b.db.size() == (w, h));
-        if let Some(blob) = self.heads[k].blob.take() {
-            let _ = self.card.destroy_property_blob(blob);
+        Ok(info.modes()[i])
+    }
+
+    /// Makes head `k`'s two scan-out buffers for `w x h` frames. Buffers of that size are
+    /// kept: a projector set up again after a hot-plug shows what its front buffer holds, the
+    /// current frame, written there while it was gone.
+    fn ensure_buffers(&mut self, k: usize, (w, h): (u32, u32)) -> Result<(), KmsError> {
+        if self.heads[k].bufs.first().is_some_and(|b| b.db.size() == (w, h)) {
+            return Ok(());
         }
-        if !keep {
-            self.free_buffers(k);
-        }
+        self.free_buffers(k);
+        let name = self.heads[k].name.clone();
         let mut bufs = Vec::new();
-        for _ in 0..if keep { 0 } else { 2 } {
+        for _ in 0..2 {
             let mut db = self
                 .card
                 .create_dumb_buffer((w, h), DrmFourcc::Xrgb8888, 32)
@@ -368,6 +370,18 @@ impl KmsOutput {
             }
             let fb = self.card.add_framebuffer(&db, 24, 32).map_err(ioctl("add framebuffer"))?;
             bufs.push(Buf { db, fb });
+        }
+        self.heads[k].bufs = bufs;
+        self.heads[k].front = 0;
+        Ok(())
+    }
+
+    /// Chooses head `k`'s mode for `size` and readies it for a modeset on the next commit.
+    fn prepare(&mut self, k: usize, size: (u32, u32), probe: bool) -> Result<(), KmsError> {
+        let mode = self.find_mode(k, size, probe)?;
+        self.ensure_buffers(k, size)?;
+        if let Some(blob) = self.heads[k].blob.take() {
+            let _ = self.card.destroy_property_blob(blob);
         }
         let blob = if self.atomic {
             match self.card.create_property_blob(&mode).map_err(ioctl("mode blob"))? {
@@ -380,13 +394,9 @@ impl KmsOutput {
         let head = &mut self.heads[k];
         head.mode = Some(mode);
         head.blob = blob;
-        if !keep {
-            head.bufs = bufs;
-            head.front = 0;
-        }
         head.modeset = true;
         head.up = true;
-        tracing::info!(connector = %name, mode = ?summaries[i], "projector mode chosen");
+        tracing::info!(connector = %head.name, mode = ?ModeSummary::of(&mode), "projector mode chosen");
         Ok(())
     }
 
@@ -737,9 +747,29 @@ impl Output for KmsOutput {
         if self.sizes.as_deref() == Some(sizes) && self.heads.iter().all(|h| !h.bufs.is_empty()) {
             return Ok(());
         }
+        // Every connected projector must be able to show its frames before anything changes:
+        // a bundle the stage cannot show is refused with the current picture left as it is.
+        // A projector with nothing connected (off, unplugged) cannot be asked; it is set up
+        // when it appears, like one that comes back after a hot-plug.
+        let mut missing = vec![false; sizes.len()];
+        for (k, &size) in sizes.iter().enumerate() {
+            match self.find_mode(k, size, false) {
+                Ok(_) => {}
+                Err(KmsError::NotConnected { .. }) => missing[k] = true,
+                Err(e) => return Err(self.err(e)),
+            }
+        }
         self.sizes = Some(sizes.to_vec());
         for (k, &size) in sizes.iter().enumerate() {
-            if let Err(e) = self.prepare(k, size, false) {
+            let done = if missing[k] {
+                tracing::warn!(connector = %self.heads[k].name, "projector not connected; it is set up when it appears");
+                self.heads[k].up = false;
+                self.heads[k].modeset = true;
+                self.ensure_buffers(k, size)
+            } else {
+                self.prepare(k, size, false)
+            };
+            if let Err(e) = done {
                 self.sizes = None;
                 return Err(self.err(e));
             }
@@ -785,7 +815,7 @@ impl Drop for KmsOutput {
     }
 }
 
-/// Listens for kernel uevents and announces DRM HOTPLUG ones to the event loop. Runs on its
+/// Listens for kernel uevents and announces DRM change (HOTPLUG) ones to the event loop. Runs on its
 /// own thread for the program's life; without the socket (no permission) hot-plug is off.
 fn start_hotplug_listener(tx: InputSender) {
     use nix::sys::socket::{
@@ -821,7 +851,7 @@ fn start_hotplug_listener(tx: InputSender) {
                 }
             };
             if is_drm_hotplug(&buf[..n]) {
-                tracing::info!("HOTPLUG uevent");
+                tracing::info!("DRM change uevent (hot-plug)");
                 if tx.blocking_send(InputEvent::OutputsChanged).is_err() {
                     return;
                 }
@@ -861,11 +891,14 @@ fn start_connector_poll(path: &Path, conns: Vec<connector::Handle>, tx: InputSen
     });
 }
 
-/// Whether a kernel uevent (NUL-separated `KEY=VALUE` fields after the header) is a DRM
-/// hot-plug.
+/// Whether a kernel uevent (a `ACTION@DEVPATH` header, then NUL-separated `KEY=VALUE`
+/// fields) asks for a re-probe: a DRM `change` event. That is the drivers' HOTPLUG=1 event,
+/// and also what an operator's `udevadm trigger --action=change --subsystem-match=drm` (or a
+/// write to the card's sysfs `uevent`) sends; re-probing is idempotent, so any of them is
+/// worth one.
 pub fn is_drm_hotplug(msg: &[u8]) -> bool {
     let fields: Vec<&[u8]> = msg.split(|&b| b == 0).collect();
-    fields.contains(&&b"SUBSYSTEM=drm"[..]) && fields.contains(&&b"HOTPLUG=1"[..])
+    fields.contains(&&b"SUBSYSTEM=drm"[..]) && fields.contains(&&b"ACTION=change"[..])
 }
 
 #[cfg(test)]
@@ -903,8 +936,8 @@ mod tests {
         assert_eq!(map_connectors(&names(&["Virtual-3", "Virtual-1"]), &card).unwrap(), vec![2, 0]);
         let e = map_connectors(&names(&["HDMI-A-1"]), &card).unwrap_err().to_string();
         assert!(e.contains("HDMI-A-1") && e.contains("Virtual-1, Virtual-2, Virtual-3"), "{e}");
-        let e = map_connectors(&names(&["Virtual-2"]), &card).unwrap_err().to_string();
-        assert!(e.contains("Virtual-2") && e.contains("nothing connected"), "{e}");
+        // Named but nothing connected now: kept (set up when it appears).
+        assert_eq!(map_connectors(&names(&["Virtual-2", "Virtual-1"]), &card).unwrap(), vec![1, 0]);
         let e = map_connectors(&names(&["Virtual-1", "Virtual-1"]), &card).unwrap_err().to_string();
         assert!(e.contains("twice"), "{e}");
         assert!(matches!(map_connectors(&[], &[c("DP-1", false)]), Err(KmsError::NoneConnected { .. })));
@@ -968,9 +1001,13 @@ mod tests {
     fn recognises_drm_hotplug_uevents_only() {
         let hp = b"change@/devices/pci0000:00/0000:00:02.0/drm/card0\0ACTION=change\0DEVPATH=/devices/x\0SUBSYSTEM=drm\0HOTPLUG=1\0DEVNAME=/dev/dri/card0\0SEQNUM=1\0";
         assert!(is_drm_hotplug(hp));
-        let other = b"add@/devices/x\0ACTION=add\0SUBSYSTEM=usb\0HOTPLUG=1\0";
+        // udevadm trigger / a sysfs `uevent` write: a change without HOTPLUG=1.
+        let synth = b"change@/devices/x/drm/card0\0ACTION=change\0SUBSYSTEM=drm\0SYNTH_UUID=0\0";
+        assert!(is_drm_hotplug(synth));
+        let other = b"change@/devices/x\0ACTION=change\0SUBSYSTEM=usb\0HOTPLUG=1\0";
         assert!(!is_drm_hotplug(other));
-        assert!(!is_drm_hotplug(b"change@/x\0SUBSYSTEM=drm\0"));
+        // A card appearing or going away is not a re-probe of ours.
+        assert!(!is_drm_hotplug(b"add@/x\0ACTION=add\0SUBSYSTEM=drm\0"));
         assert!(!is_drm_hotplug(b""));
     }
 
