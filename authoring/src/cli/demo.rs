@@ -81,7 +81,7 @@ pub fn run(args: &Args) -> Result<()> {
         &picks,
         Some(&mask),
         &classify_dir,
-        1,
+        &restage_authoring::classify::ClassifyOptions::default(),
     )?;
     tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());
 

@@ -73,7 +73,13 @@ pub fn run_chain(
     })
     .save(&mask_path)?;
     let photo_path = capture_dir.join(&manifest.photo);
-    let cls = super::classify::classify_files(&photo_path, &picks_path, Some(&mask_path), &classify_dir, 50)?;
+    let cls = super::classify::classify_files(
+        &photo_path,
+        &picks_path,
+        Some(&mask_path),
+        &classify_dir,
+        &restage_authoring::classify::ClassifyOptions::default(),
+    )?;
     log(format!(
         "step 3 classify ({:.1} s): {cls}; picks drawn from the ground-truth label map (stand-in for clicks)",
         at()
