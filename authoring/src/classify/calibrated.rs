@@ -333,7 +333,13 @@ mod tests {
         assert!(acc > 0.99, "accuracy {acc}");
         let p = &out.palette;
         assert_eq!(p.iterations, 1, "{p:?}");
-        let full = classify(&scene.photo, &picks, None, &ClassifyOptions { max_iterations: 50, ..Default::default() }).unwrap();
+        let full = classify(
+            &scene.photo,
+            &picks,
+            None,
+            &ClassifyOptions { max_iterations: 50, ..Default::default() },
+        )
+        .unwrap();
         assert!(full.palette.converged && full.palette.iterations >= 2, "{:?}", full.palette);
         assert!(accuracy(&full.labels, &scene.truth) > 0.99);
         assert!((p.weights.iter().sum::<f64>() - 1.0).abs() < 1e-12 && p.weights.iter().all(|&w| w > 0.0));

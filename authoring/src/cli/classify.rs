@@ -92,10 +92,9 @@ pub fn classify_files(
     };
     bar.set_message("fitting weights and clustering");
     let t0 = Instant::now();
-    let result = classify::classify(&photo, &picks, mask.as_deref(), opts)
-        .with_context(|| {
-            format!("classifying {} with picks {}", photo_path.display(), picks_path.display())
-        })?;
+    let result = classify::classify(&photo, &picks, mask.as_deref(), opts).with_context(|| {
+        format!("classifying {} with picks {}", photo_path.display(), picks_path.display())
+    })?;
     let compute = t0.elapsed();
     bar.set_message("writing outputs");
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;

@@ -39,13 +39,41 @@ pub fn run_chain(
     let at = || start.elapsed().as_secs_f64();
     let stage = VirtualStage::new(scene)?;
 
-    // Step 2: calibration. The geometry calibration does not yet produce the radiometry
-    // (per-pixel gain, ambient) compensation needs, so the demo uses the TRUE stage model the
-    // virtual stage wrote, and says so.
+    // Step 2: calibration. Compensation runs on the TRUE stage model the virtual stage wrote
+    // (geometry, correspondences, responses, gain), with one calibrated part: each projector's lux
+    // scale (`lux_at_1m`) from the simulated lux-meter readings, as `calibrate` fitted it. The
+    // summary says which is which; the visitor view below is rendered with the true physics.
     let truth_dir = capture_dir.join("ground-truth").join("stage");
-    let model = StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    let mut model =
+        StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    let calibrated_dir = out.join("stage");
+    let calibrated = StageModel::load(&calibrated_dir)
+        .with_context(|| format!("reading the calibrated stage model {}", calibrated_dir.display()))?;
+    let lux_calibrated = calibrated.projectors.len() == model.projectors.len()
+        && calibrated.projectors.iter().all(|p| p.lux_at_1m.is_finite() && p.lux_at_1m > 0.0);
+    let lux_line = if lux_calibrated {
+        let parts: Vec<String> = model
+            .projectors
+            .iter_mut()
+            .zip(&calibrated.projectors)
+            .enumerate()
+            .map(|(k, (t, c))| {
+                let line = format!(
+                    "proj {k} {:.1} (true {:.1}, {:+.2} %)",
+                    c.lux_at_1m,
+                    t.lux_at_1m,
+                    100.0 * (c.lux_at_1m - t.lux_at_1m) / t.lux_at_1m
+                );
+                t.lux_at_1m = c.lux_at_1m;
+                line
+            })
+            .collect();
+        format!("lux scale CALIBRATED from the simulated lux-meter readings, lx at 1 m: {}", parts.join(", "))
+    } else {
+        "lux scale TRUE (the calibrated model has no lux scale)".to_string()
+    };
     log(format!(
-        "compensation model: SUBSTITUTE — the geometry calibration above has no radiometry (gain, ambient) yet, so the TRUE stage model ({}) is used for compensation",
+        "compensation model: SUBSTITUTE — geometry, correspondences, responses, vignetting and gain from the TRUE stage model ({}); {lux_line}",
         truth_dir.display()
     ));
 
