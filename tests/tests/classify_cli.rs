@@ -66,7 +66,9 @@ fn classify_cli_writes_labels_palette_and_preview_that_match_the_truth() {
     for (c, p) in palette.classes.iter().zip(&picks.colours) {
         assert_eq!(c.name, p.name);
     }
-    assert!((palette.weights.iter().sum::<f64>() - 1.0).abs() < 1e-9 && palette.weights.iter().all(|&w| w > 0.0));
+    assert!(
+        (palette.weights.iter().sum::<f64>() - 1.0).abs() < 1e-9 && palette.weights.iter().all(|&w| w > 0.0)
+    );
     // Off the mask stays masked; on it, the classes agree with the deteriorated truth.
     let (mut right, mut total) = (0u64, 0u64);
     for (&l, &t) in labels.data.iter().zip(&truth.data) {
