@@ -115,14 +115,17 @@ pub fn run_chain(
 
     // Step 4: restore.
     let restore_dir = out.join("restore");
+    let defaults = restage_authoring::restore::RestoreParams::default();
     let rargs = super::restore::RestoreArgs {
         classify_dir: classify_dir.clone(),
         out: restore_dir.clone(),
-        alpha: 2.0,
-        beta: 3.0,
+        alpha: defaults.alpha,
+        beta: defaults.beta,
         gamma: None,
-        neighbours: 3,
-        scale: 20.0,
+        neighbours: defaults.neighbours,
+        scale: defaults.scale_px,
+        // The bare clay that chips and cracks expose is loss, as a conservator would say.
+        loss: present.iter().position(|&c| c == palette.clay).map(|k| k as u8).into_iter().collect(),
         regions: vec![],
         background: None,
         hints: None,
