@@ -110,7 +110,7 @@ pub fn simulated_lux_readings(
     stage: &restage_authoring::stage_sim::VirtualStage,
 ) -> Result<restage_authoring::calibrate::lux::LuxReadings> {
     use restage_authoring::calibrate::lux::{LuxReadings, Meter};
-    let (pixel, values) = stage
+    let restage_authoring::stage_sim::LuxMeterSession { pixel, readings: values } = stage
         .lux_meter_session()?
         .context("no surface point is lit by every projector: nowhere to hold the lux meter")?;
     Ok(LuxReadings {

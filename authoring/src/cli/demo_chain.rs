@@ -72,8 +72,12 @@ pub fn run_chain(
     } else {
         "lux scale TRUE (the calibrated model has no lux scale)".to_string()
     };
+    // The model compensation and the bundle use, written so the bundle names what was used.
+    let model_dir = out.join("compensation-stage");
+    model.save(&model_dir).with_context(|| format!("writing {}", model_dir.display()))?;
     log(format!(
-        "compensation model: SUBSTITUTE — geometry, correspondences, responses, vignetting and gain from the TRUE stage model ({}); {lux_line}",
+        "compensation model ({}): SUBSTITUTE — geometry, correspondences, responses, vignetting and gain from the TRUE stage model ({}); {lux_line}",
+        model_dir.display(),
         truth_dir.display()
     ));
 
@@ -213,7 +217,7 @@ pub fn run_chain(
     let _ = writeln!(
         desc,
         "version = 1\nstage = {:?}\ncertificate = {:?}\nvalid_days = 365\n",
-        truth_dir.display().to_string(),
+        model_dir.display().to_string(),
         comp_dir.join(compensate::io::CERTIFICATE_FILE).display().to_string()
     );
     let _ = writeln!(

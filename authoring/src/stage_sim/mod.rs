@@ -65,6 +65,15 @@ pub enum StageSimError {
     LuxMeter { pixel: [u32; 2], problem: String },
 }
 
+/// The simulated lux-meter readings: where the meter was held and one reading (lux) per
+/// projector at full white.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LuxMeterSession {
+    /// Camera pixel whose surface point the meter was held at.
+    pub pixel: [u32; 2],
+    pub readings: Vec<f64>,
+}
+
 /// The built-in objects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -454,9 +463,9 @@ impl VirtualStage {
 
     /// The conservator's lux-meter session on this stage: the meter held at the surface point
     /// every projector lights nearest the camera's principal point, facing each projector in
-    /// turn while it shows full white ([`lux_meter`](Self::lux_meter)). Returns the camera
-    /// pixel and one reading per projector, or `None` when no point is lit by all projectors.
-    pub fn lux_meter_session(&self) -> Result<Option<([u32; 2], Vec<f64>)>, StageSimError> {
+    /// turn while it shows full white ([`lux_meter`](Self::lux_meter)). `None` when no point
+    /// is lit by all projectors.
+    pub fn lux_meter_session(&self) -> Result<Option<LuxMeterSession>, StageSimError> {
         let cam = &self.setup.camera;
         let (w, h) = (cam.width as usize, cam.height as usize);
         let lit_by_all = |i: usize| self.samples.iter().all(|s| s[i].g > 0.0);
@@ -470,7 +479,7 @@ impl VirtualStage {
         let readings = (0..self.projector_count())
             .map(|k| self.lux_meter(pixel, Some(k), k))
             .collect::<Result<Vec<_>, _>>()?;
-        Ok(Some((pixel, readings)))
+        Ok(Some(LuxMeterSession { pixel, readings }))
     }
 
     /// Irradiance in lux per camera pixel from all projectors showing `frames` (their black

@@ -212,7 +212,7 @@ fn built_in_scenes_have_sensible_light_levels_and_truth() {
 fn the_simulated_lux_meter_calibrates_the_true_lux_scale() {
     use crate::calibrate::lux::{LuxReadings, Meter, apply_lux};
     let stage = VirtualStage::new(&SceneConfig::tiny(SceneName::Jar, 3)).unwrap();
-    let (pixel, values) = stage.lux_meter_session().unwrap().unwrap();
+    let LuxMeterSession { pixel, readings: values } = stage.lux_meter_session().unwrap().unwrap();
     let truth = stage.truth();
     // Facing projector k at full white: about lux_at_1m / d^2 (vignetting, black level and the
     // others' black light make it differ by a few per cent), far more than all black.

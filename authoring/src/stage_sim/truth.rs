@@ -114,7 +114,7 @@ pub(super) fn write(stage: &VirtualStage, dir: &Path) -> Result<(), StageSimErro
         img.save_linear16(&dir.join(name))?;
     }
     // The lux meter's readings in `calibrate --lux-file` form (see calibrate::lux).
-    if let Some((pixel, readings)) = stage.lux_meter_session()? {
+    if let Some(super::LuxMeterSession { pixel, readings }) = stage.lux_meter_session()? {
         let mut text = format!(
             "# What a lux meter reads on this virtual stage (true physics): held at camera pixel\n\
              # {pixel:?}'s surface point, facing each projector in turn at full white, the others\n\
