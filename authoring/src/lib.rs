@@ -10,6 +10,7 @@ pub mod compensate;
 pub mod contact_sheet;
 pub mod eval;
 pub mod export;
+pub mod gpu;
 pub mod hw;
 pub mod imgio;
 pub mod patterns;

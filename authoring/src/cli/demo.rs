@@ -9,6 +9,7 @@ use anyhow::{Context, Result};
 use restage_authoring::acquire::AcquireConfig;
 use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::contact_sheet;
+use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::stage_sim::{SceneConfig, SceneName};
 
@@ -22,6 +23,10 @@ pub struct Args {
     /// Seed of the simulated stage.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Where compensation and relighting do their per-pixel work (auto: a hardware GPU if
+    /// there is one, else the CPU; gpu: any adapter, lavapipe included).
+    #[arg(long, value_enum, default_value_t = Device::Auto)]
+    pub device: Device,
 }
 
 /// The demo's capture: paper-sized projectors, a smaller camera and coarser dot grids and
@@ -93,7 +98,7 @@ pub fn run(args: &Args) -> Result<()> {
     )?;
     tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());
 
-    super::demo_chain::run_chain(&args.out, &capture_dir, &scene, &manifest, args.seed, start)?;
+    super::demo_chain::run_chain(&args.out, &capture_dir, &scene, &manifest, args.seed, args.device, start)?;
 
     tracing::info!(
         "demo finished in {:.1} s; results in {}",

@@ -13,6 +13,7 @@ use restage_authoring::classify::{LabelMap, picks_from_labels};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
 use restage_authoring::contact_sheet;
 use restage_authoring::eval::compensate::{TruePhysics, colour_error, true_peak};
+use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::relight::{self, Lighting};
 use restage_authoring::stage_model::StageModel;
@@ -28,6 +29,7 @@ pub fn run_chain(
     scene: &SceneConfig,
     manifest: &CaptureManifest,
     seed: u64,
+    device: Device,
     start: Instant,
 ) -> Result<()> {
     let mut summary = String::new();
@@ -143,7 +145,7 @@ pub fn run_chain(
     let photo = LinearImage::load(&photo_path)?;
 
     // Step 5: relight one variant (soft key light, a third of the photo's material noise).
-    let relit = relight::relight(&model, &restored, &Lighting::default())?;
+    let relit = relight::relight_on(&model, &restored, &Lighting::default(), device)?;
     let relit = relight::infuse_noise(&model, &relit, &photo, 0.3, 3)?;
     relit.save_srgb8(&out.join("relit.png"), 1.0)?;
     log(format!("step 5 relight ({:.1} s): soft key light + 30 % of the photo's material noise", at()));
@@ -160,7 +162,7 @@ pub fn run_chain(
     ];
     let mut views = Vec::new();
     for (id, _, _, target) in &scenes {
-        let comp = compensate::compensate_prepared(&model, &prep, target, &params)?;
+        let comp = compensate::compensate_on(&model, &prep, target, &params, device)?;
         let dir = comp_dir.join(id);
         compensate::io::save(&dir, &comp, &params, &prep)?;
         if *id == "restored" {
