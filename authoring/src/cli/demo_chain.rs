@@ -41,13 +41,45 @@ pub fn run_chain(
     let at = || start.elapsed().as_secs_f64();
     let stage = VirtualStage::new(scene)?;
 
-    // Step 2: calibration. The geometry calibration does not yet produce the radiometry
-    // (per-pixel gain, ambient) compensation needs, so the demo uses the TRUE stage model the
-    // virtual stage wrote, and says so.
+    // Step 2: calibration. Compensation runs on the TRUE stage model the virtual stage wrote
+    // (geometry, correspondences, responses, gain), with one calibrated part: each projector's lux
+    // scale (`lux_at_1m`) from the simulated lux-meter readings, as `calibrate` fitted it. The
+    // summary says which is which; the visitor view below is rendered with the true physics.
     let truth_dir = capture_dir.join("ground-truth").join("stage");
-    let model = StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    let mut model =
+        StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    let calibrated_dir = out.join("stage");
+    let calibrated = StageModel::load(&calibrated_dir)
+        .with_context(|| format!("reading the calibrated stage model {}", calibrated_dir.display()))?;
+    let lux_calibrated = calibrated.projectors.len() == model.projectors.len()
+        && calibrated.projectors.iter().all(|p| p.lux_at_1m.is_finite() && p.lux_at_1m > 0.0);
+    let lux_line = if lux_calibrated {
+        let parts: Vec<String> = model
+            .projectors
+            .iter_mut()
+            .zip(&calibrated.projectors)
+            .enumerate()
+            .map(|(k, (t, c))| {
+                let line = format!(
+                    "proj {k} {:.1} (true {:.1}, {:+.2} %)",
+                    c.lux_at_1m,
+                    t.lux_at_1m,
+                    100.0 * (c.lux_at_1m - t.lux_at_1m) / t.lux_at_1m
+                );
+                t.lux_at_1m = c.lux_at_1m;
+                line
+            })
+            .collect();
+        format!("lux scale CALIBRATED from the simulated lux-meter readings, lx at 1 m: {}", parts.join(", "))
+    } else {
+        "lux scale TRUE (the calibrated model has no lux scale)".to_string()
+    };
+    // The model compensation and the bundle use, written so the bundle names what was used.
+    let model_dir = out.join("compensation-stage");
+    model.save(&model_dir).with_context(|| format!("writing {}", model_dir.display()))?;
     log(format!(
-        "compensation model: SUBSTITUTE — the geometry calibration above has no radiometry (gain, ambient) yet, so the TRUE stage model ({}) is used for compensation",
+        "compensation model ({}): SUBSTITUTE — geometry, correspondences, responses, vignetting and gain from the TRUE stage model ({}); {lux_line}",
+        model_dir.display(),
         truth_dir.display()
     ));
 
@@ -75,7 +107,13 @@ pub fn run_chain(
     })
     .save(&mask_path)?;
     let photo_path = capture_dir.join(&manifest.photo);
-    let cls = super::classify::classify_files(&photo_path, &picks_path, Some(&mask_path), &classify_dir, 50)?;
+    let cls = super::classify::classify_files(
+        &photo_path,
+        &picks_path,
+        Some(&mask_path),
+        &classify_dir,
+        &restage_authoring::classify::ClassifyOptions::default(),
+    )?;
     log(format!(
         "step 3 classify ({:.1} s): {cls}; picks drawn from the ground-truth label map (stand-in for clicks)",
         at()
@@ -181,7 +219,7 @@ pub fn run_chain(
     let _ = writeln!(
         desc,
         "version = 1\nstage = {:?}\ncertificate = {:?}\nvalid_days = 365\n",
-        truth_dir.display().to_string(),
+        model_dir.display().to_string(),
         comp_dir.join(compensate::io::CERTIFICATE_FILE).display().to_string()
     );
     let _ = writeln!(
