@@ -12,6 +12,12 @@ pub fn author_bin() -> &'static Path {
     BIN.get_or_init(|| build_bin("restage-authoring", "restage-author"))
 }
 
+/// Path of the `restage-appliance` binary (built once per test process, like `author_bin`).
+pub fn appliance_bin() -> &'static Path {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| build_bin("restage-appliance", "restage-appliance"))
+}
+
 fn build_bin(package: &str, bin: &str) -> PathBuf {
     // The test executable lives in target/<profile>/deps/.
     let exe = std::env::current_exe().expect("test executable path");

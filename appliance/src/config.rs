@@ -117,8 +117,18 @@ pub enum OutputConfig {
         projectors: usize,
     },
     /// DRM/KMS on the stage machine: `card` (e.g. /dev/dri/card0) and one connector name per
-    /// projector in projector order (e.g. ["HDMI-A-1", "HDMI-A-2", "DP-1"]).
-    Kms { card: PathBuf, connectors: Vec<String> },
+    /// projector in projector order (e.g. ["HDMI-A-1", "HDMI-A-2", "DP-1"]; names as in
+    /// /sys/class/drm/card0-NAME). An empty list means every connected connector in the
+    /// card's order (fragile: the order changes when a projector is off at boot).
+    Kms {
+        card: PathBuf,
+        #[serde(default)]
+        connectors: Vec<String>,
+        /// Use atomic modesetting (one commit for all projectors) where the driver offers it;
+        /// false forces the legacy modeset + page flip path. Default true.
+        #[serde(default = "yes")]
+        atomic: bool,
+    },
 }
 
 fn three() -> usize {
@@ -256,11 +266,11 @@ impl Config {
                 }
             }
             OutputConfig::Kms { connectors, .. } => {
-                if !(1..=8).contains(&connectors.len()) {
+                if connectors.len() > 8 {
                     return Err(range(
                         "output.connectors",
                         format!("{connectors:?}"),
-                        "1..=8 connector names",
+                        "0..=8 connector names (none = every connected one, in order)",
                     ));
                 }
             }

@@ -95,13 +95,17 @@ pub fn open_verified(
 }
 
 /// Verifies and loads the bundle at `path`. `idle` is the config's idle override, if any.
-/// On success the version is recorded as accepted and the bundle made active in the ledger.
+/// `playable` is asked last whether the outputs can show the bundle (e.g. the projectors
+/// offer its frame size; it may set the modes); a refusal there is `Unplayable` too.
+/// On success the version is recorded as accepted and the bundle made active in the ledger:
+/// a bundle the stage cannot show never advances the anti-rollback record.
 pub fn load(
     path: &Path,
     trust_dir: &Path,
     ledger: &mut Ledger,
     now_unix_ms: i64,
     idle: Option<IdleMode>,
+    playable: impl FnOnce(&Show) -> Result<(), String>,
 ) -> Result<Loaded, LoadError> {
     let (bundle, hash) = open_verified(path, trust_dir, ledger, now_unix_ms)?;
     let m = &bundle.manifest;
@@ -205,6 +209,7 @@ pub fn load(
         expires_unix_ms: m.expires_unix_s.map(|s| s.saturating_mul(1000)),
     };
 
+    playable(&show).map_err(|e| unplayable(format!("the outputs cannot show it: {e}")))?;
     // Everything verified: record the version, make it the active bundle.
     ledger.accept_version(&show.object_id, show.version, &hash, now_unix_ms).map_err(LoadError::Ledger)?;
     ledger
@@ -242,4 +247,46 @@ pub fn load(
         "bundle verified and loaded"
     );
     Ok(Loaded { show: Arc::new(show), store })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use restage_shared::bundle::example::{ExampleSpec, example_writer};
+    use restage_shared::keys::{public_key_to_pem, signing_key_from_seed};
+
+    #[test]
+    fn a_bundle_the_outputs_cannot_show_does_not_advance_the_accepted_version() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = signing_key_from_seed([3; 32]);
+        let trust = dir.path().join("trust");
+        std::fs::create_dir(&trust).unwrap();
+        std::fs::write(trust.join("k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
+        let write = |version: u64| {
+            let path = dir.path().join(format!("v{version}.bundle"));
+            let spec = ExampleSpec { version, ..ExampleSpec::small() };
+            example_writer(&spec).write(&key, File::create(&path).unwrap()).unwrap();
+            path
+        };
+        let (v3, v4) = (write(3), write(4));
+        let mut ledger = Ledger::open_in_memory(0).unwrap();
+        let now = 1_700_000_100_000;
+        assert!(load(&v3, &trust, &mut ledger, now, None, |_| Ok(())).is_ok());
+        let e = load(&v4, &trust, &mut ledger, now, None, |_| Err("no 32x24 mode".into())).err().unwrap();
+        assert!(
+            e.to_string().contains("v4.bundle") && e.to_string().contains("cannot show it: no 32x24 mode"),
+            "{e}"
+        );
+        assert_eq!(ledger.accepted_version("test-jar-1").unwrap(), Some(3));
+        // The current, older bundle still loads (no rollback refusal).
+        let mut asked = false;
+        assert!(
+            load(&v3, &trust, &mut ledger, now, None, |_| {
+                asked = true;
+                Ok(())
+            })
+            .is_ok()
+        );
+        assert!(asked);
+    }
 }

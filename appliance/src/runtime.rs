@@ -38,6 +38,13 @@ pub enum RunError {
     Io(#[from] std::io::Error),
 }
 
+/// Microseconds of CLOCK_MONOTONIC (log timestamps comparable with DRM flip events).
+fn monotonic_us() -> u64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
+        .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
+        .unwrap_or(0)
+}
+
 /// Checks that the state directory exists and is readable and writable.
 pub fn check_state_dir(dir: &Path) -> Result<(), RunError> {
     let err = |problem: String| RunError::StateDir { path: dir.into(), problem };
@@ -65,11 +72,13 @@ pub fn open_output(config: &Config, inputs: &input::InputSender) -> Result<Box<d
         OutputConfig::Window { .. } => {
             return Err(RunError::OutputUnavailable { kind: "window", hint: "build with --features window" });
         }
+        #[cfg(target_os = "linux")]
+        OutputConfig::Kms { card, connectors, atomic } => {
+            Box::new(crate::output::kms::KmsOutput::open(card, connectors, *atomic, Some(inputs.clone()))?)
+        }
+        #[cfg(not(target_os = "linux"))]
         OutputConfig::Kms { .. } => {
-            return Err(RunError::OutputUnavailable {
-                kind: "kms",
-                hint: "the DRM/KMS output is a separate component (output::kms), not in this build",
-            });
+            return Err(RunError::OutputUnavailable { kind: "kms", hint: "DRM/KMS needs Linux" });
         }
     };
     out.blank()?;
@@ -108,16 +117,26 @@ impl App {
         let now = self.now();
         let commands = self.player.handle(now, event, &mut self.ledger);
         if let Err(e) = self.apply(&commands) {
-            // Dark first; the player then goes to its fault state (and asks for dark again).
-            let _ = self.output.blank();
-            let commands = self.player.handle(self.now(), Event::Fault(e.clone()), &mut self.ledger);
-            for c in commands {
-                if let Command::Show(Look::Off) = c {
-                    let _ = self.output.blank();
-                }
-            }
-            let _ = self.ledger.log_event(now.unix_ms, "fault", &e);
+            self.output_fault(e);
+        } else {
+            self.player.settle(self.now(), &mut self.ledger);
+            self.report_status();
         }
+    }
+
+    /// An output failed: dark first; the player then goes to its fault state (and asks for
+    /// dark again).
+    fn output_fault(&mut self, e: String) {
+        let now = self.now();
+        tracing::error!("output fault: {e}");
+        let _ = self.output.blank();
+        let commands = self.player.handle(self.now(), Event::Fault(e.clone()), &mut self.ledger);
+        for c in commands {
+            if let Command::Show(Look::Off) = c {
+                let _ = self.output.blank();
+            }
+        }
+        let _ = self.ledger.log_event(now.unix_ms, "fault", &e);
         self.player.settle(self.now(), &mut self.ledger);
         self.report_status();
     }
@@ -188,13 +207,10 @@ impl App {
             &mut self.ledger,
             now.unix_ms,
             self.config.player.idle,
+            |show| self.output.set_modes(&show.projectors).map_err(|e| e.to_string()),
         );
         match result {
             Ok(loaded) => {
-                if let Err(e) = self.output.set_modes(&loaded.show.projectors) {
-                    let msg = format!("bundle {} refused: the outputs cannot show it: {e}", path.display());
-                    return Err(self.refused(msg));
-                }
                 let _ = self.ledger.log_event(
                     now.unix_ms,
                     "load",
@@ -270,7 +286,9 @@ impl App {
     fn input(&mut self, e: InputEvent) -> bool {
         match e {
             InputEvent::Press { source } => {
-                tracing::debug!(source, "press");
+                // CLOCK_MONOTONIC, the clock of the KMS output's flip timestamps: press to
+                // light is read off the logs.
+                tracing::info!(source, mono_us = monotonic_us(), "press");
                 self.step(Event::Press);
             }
             InputEvent::Release { .. } => self.step(Event::Release),
@@ -295,6 +313,11 @@ impl App {
                 }
             }
             InputEvent::Quit => return false,
+            InputEvent::OutputsChanged => {
+                if let Err(e) = self.output.reprobe() {
+                    self.output_fault(format!("after a hot-plug: {e}"));
+                }
+            }
         }
         true
     }
@@ -362,6 +385,7 @@ pub async fn run(config: Config) -> Result<(), RunError> {
     let mut int = signal(SignalKind::interrupt())?;
     let mut hup = signal(SignalKind::hangup())?;
 
+    tracing::info!(mono_us = monotonic_us(), "appliance starting");
     // Outputs first, blanked: whatever fails next, the projectors are dark.
     let (tx, mut rx) = mpsc::channel(input::CHANNEL_CAPACITY);
     let output = open_output(&config, &tx)?;

@@ -21,8 +21,13 @@ fn bench(c: &mut Criterion) {
         });
         group.bench_function(format!("ours, Lloyd to convergence/{mp}/5 colours"), |b| {
             b.iter(|| {
-                classify(&scene.photo, &picks, None, &ClassifyOptions { max_iterations: 50 })
-                    .expect("classify")
+                classify(
+                    &scene.photo,
+                    &picks,
+                    None,
+                    &ClassifyOptions { max_iterations: 50, ..Default::default() },
+                )
+                .expect("classify")
             })
         });
         group.bench_function(format!("kmeans++ rgb/{mp}/5 colours"), |b| {

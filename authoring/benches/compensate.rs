@@ -1,13 +1,24 @@
 //! Compensation speed: 3 frames of 1400x1050 from a 1600x1200 target (the brief's target:
 //! under 0.5 s on the CPU path on the 2-core authoring machine), and the once-per-stage
-//! preparation (geometry, inverse responses, light certificate) measured separately.
+//! preparation (geometry, inverse responses, light certificate) measured separately; the
+//! per-pixel part alone on the CPU and, where an adapter exists, on the GPU.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use restage_authoring::compensate::synthetic::{SyntheticSpec, build};
-use restage_authoring::compensate::{Exponent, Params, Prepared, compensate_prepared};
+use restage_authoring::compensate::{
+    Exponent, Params, Prepared, compensate_on, compensate_prepared, draft_cpu,
+};
+use restage_authoring::gpu::{self, Device};
 use restage_authoring::imgio::LinearImage;
 
 fn bench(c: &mut Criterion) {
+    // `RUST_LOG=restage_authoring=debug` shows compensation's own step timings.
+    if std::env::var_os("RUST_LOG").is_some() {
+        tracing_subscriber::fmt()
+            .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+            .with_writer(std::io::stderr)
+            .init();
+    }
     let spec = SyntheticSpec {
         camera: (1600, 1200),
         projector: (1400, 1050),
@@ -26,6 +37,40 @@ fn bench(c: &mut Criterion) {
     g.bench_function("3 x 1400x1050 frames from 1600x1200", |b| {
         b.iter(|| compensate_prepared(&s.model, &prep, &target, &params).unwrap())
     });
+    g.bench_function("per-pixel part only (CPU draft, before the guarantee)", |b| {
+        b.iter(|| draft_cpu(&s.model, &prep, &target, &params).unwrap())
+    });
+    // The GPU path where an adapter exists (lavapipe on CPU-only machines): the per-pixel part
+    // alone and the whole compensation (the guarantee stays on the CPU).
+    match gpu::shared() {
+        Ok(dev) => {
+            eprintln!("GPU adapter: {} ({:?})", dev.info.name, dev.info.device_type);
+            // How far the paths are apart at this size (the tests hold them within one level).
+            let c = draft_cpu(&s.model, &prep, &target, &params).unwrap();
+            let d =
+                restage_authoring::compensate::gpu::draft(dev, &s.model, &prep, &target, &params).unwrap();
+            let (mut worst, mut differ, mut total) = (0u8, 0usize, 0usize);
+            for (a, b) in c.frames.iter().zip(&d.frames) {
+                for (x, y) in a.as_raw().iter().zip(b.as_raw()) {
+                    worst = worst.max(x.abs_diff(*y));
+                    differ += (x != y) as usize;
+                    total += 1;
+                }
+            }
+            eprintln!(
+                "GPU vs CPU frames: max difference {worst} level(s), {differ} of {total} values differ"
+            );
+            g.bench_function("per-pixel part only (GPU draft)", |b| {
+                b.iter(|| {
+                    restage_authoring::compensate::gpu::draft(dev, &s.model, &prep, &target, &params).unwrap()
+                })
+            });
+            g.bench_function("3 x 1400x1050 frames, GPU path", |b| {
+                b.iter(|| compensate_on(&s.model, &prep, &target, &params, Device::Gpu).unwrap())
+            });
+        }
+        Err(e) => eprintln!("no GPU adapter ({e}): GPU benches skipped"),
+    }
     g.bench_function("prepare stage (geometry, certificate)", |b| {
         b.iter(|| Prepared::new(&s.model, params.reduction).unwrap())
     });

@@ -11,6 +11,7 @@ pub mod contact_sheet;
 pub mod devices;
 pub mod eval;
 pub mod export;
+pub mod gpu;
 pub mod hw;
 pub mod imgio;
 pub mod patterns;

@@ -36,10 +36,15 @@ def load_photo_srgb8(path):
 
 
 def best_accuracy(truth, clusters, k):
+    """Accuracy and per-class recall under the best one-to-one cluster -> class map."""
     conf = np.zeros((k, k), dtype=np.int64)
     np.add.at(conf, (truth, clusters), 1)
-    best = max(sum(conf[perm[c], c] for c in range(k)) for perm in itertools.permutations(range(k)))
-    return best / truth.size
+    perm = max(itertools.permutations(range(k)), key=lambda p: sum(conf[p[c], c] for c in range(k)))
+    right = sum(conf[perm[c], c] for c in range(k))
+    recall = [0.0] * k
+    for c in range(k):
+        recall[perm[c]] = conf[perm[c], c] / max(conf[perm[c]].sum(), 1) * 100
+    return right / truth.size, recall
 
 
 def kmeans(samples, k, seed):
@@ -64,14 +69,18 @@ def scene_row(folder, seed):
     shifted = cv2.pyrMeanShiftFiltering(bgr, sp=10, sr=20)
     ms_s = time.perf_counter() - t0
     ms, _ = kmeans(shifted[obj].astype(np.float32), k, seed)
+    km_acc, km_recall = best_accuracy(truth, km, k)
+    ms_acc, ms_recall = best_accuracy(truth, ms, k)
     return {
         "scene": os.path.basename(os.path.normpath(folder)),
+        "classes": ours.get("classes", [str(c) for c in range(k)]),
+        "recall": {"cv2.kmeans": km_recall, "cv2.pyrMeanShift+kmeans": ms_recall, **ours.get("recall", {})},
         "k": k,
         "ours": ours["ours"] * 100,
         "kmeans++ RGB (ours)": ours["k-means++ RGB"] * 100,
         "kmeans++ Lab (ours)": ours["k-means++ Lab"] * 100,
-        "cv2.kmeans": best_accuracy(truth, km, k) * 100,
-        "cv2.pyrMeanShift+kmeans": best_accuracy(truth, ms, k) * 100,
+        "cv2.kmeans": km_acc * 100,
+        "cv2.pyrMeanShift+kmeans": ms_acc * 100,
         "cv2.kmeans s": km_s,
         "meanshift s": ms_s,
     }
@@ -92,6 +101,12 @@ def main():
         print(f"{'scene':<8} {'k':>2} " + " ".join(f"{c:>24}" for c in cols))
         for r in rows:
             print(f"{r['scene']:<8} {r['k']:>2} " + " ".join(f"{r[c]:>24.2f}" for c in cols))
+        print("\nper-class recall (%):")
+        for r in rows:
+            methods = list(r["recall"].keys())
+            print(f"{r['scene']:<8} {'class':<10} " + " ".join(f"{m:>24}" for m in methods))
+            for c, name in enumerate(r["classes"]):
+                print(f"{'':<8} {name:<10} " + " ".join(f"{r['recall'][m][c]:>24.2f}" for m in methods))
         print("\nOpenCV times (s): " + ", ".join(
             f"{r['scene']} kmeans {r['cv2.kmeans s']:.3f} meanshift {r['meanshift s']:.3f}" for r in rows))
     if args.speed:

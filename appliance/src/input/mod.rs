@@ -48,6 +48,8 @@ pub enum InputEvent {
     Control { command: Control, reply: Option<oneshot::Sender<String>> },
     /// The development window was closed: stop the program.
     Quit,
+    /// A display was plugged in or out (a DRM HOTPLUG uevent): the output re-probes.
+    OutputsChanged,
 }
 
 /// The sending side handed to each input.

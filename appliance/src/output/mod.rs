@@ -4,6 +4,8 @@
 use thiserror::Error;
 
 pub mod headless;
+#[cfg(target_os = "linux")]
+pub mod kms;
 #[cfg(feature = "window")]
 pub mod window;
 
@@ -44,6 +46,12 @@ pub trait Output {
     fn show(&mut self, frames: &[FrameRef<'_>]) -> Result<(), OutputError>;
     /// Makes every projector dark (all-black frames, or the outputs off).
     fn blank(&mut self) -> Result<(), OutputError>;
+    /// Looks at the displays again after a hot-plug event (`InputEvent::OutputsChanged`):
+    /// a projector that came back is set up again with what it should show. Outputs without
+    /// hot-plug have nothing to do.
+    fn reprobe(&mut self) -> Result<(), OutputError> {
+        Ok(())
+    }
 }
 
 /// Checks a frame set against the projector count and the sizes set by `set_modes`.

@@ -148,13 +148,10 @@ pub fn measure_transport(
         })
         .collect::<Result<Vec<_>, ImageError>>()?;
     let result = transport::assemble(k, capture.width, capture.height, spacing, images)?;
-    let (refined, stats) = transport::refine_correspondences(
-        correspondence,
-        cam_w,
-        cam_h,
-        &result.dots,
-        params.max_refine_shift,
-    );
+    // Dots cut by the silhouette or a shadow have centres pulled inwards: not used to refine.
+    let whole: Vec<transport::Dot> = result.dots.iter().filter(|d| !d.clipped).copied().collect();
+    let (refined, stats) =
+        transport::refine_correspondences(correspondence, cam_w, cam_h, &whole, params.max_refine_shift);
     Ok((result, refined, stats))
 }
 

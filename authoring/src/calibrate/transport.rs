@@ -128,6 +128,11 @@ pub struct Blob {
     pub pixels: Vec<(u32, f32)>,
     /// Some blob pixel reached [`SATURATED`].
     pub saturated: bool,
+    /// The blob touches a camera pixel this projector does not light (the object's silhouette,
+    /// a cast shadow, a dark gap): part of the dot's light fell where the camera cannot measure
+    /// it, so its weighted centre is pulled inwards and is no estimate of where the projector
+    /// pixel's centre lands. Its footprint is still the light that does arrive.
+    pub clipped: bool,
 }
 
 /// Why a dot with a prediction yielded no blob.
@@ -262,6 +267,7 @@ pub fn snap_blob(
     let mut pixels = Vec::new();
     let (mut sx, mut sy, mut sw) = (0.0f64, 0.0f64, 0.0f64);
     let mut saturated = false;
+    let mut clipped = false;
     while let Some((x, y)) = stack.pop() {
         let i = (y * w + x) as usize;
         if image.saturated[i] {
@@ -277,7 +283,14 @@ pub fn snap_blob(
         }
         for (nx, ny) in [(x - 1, y), (x + 1, y), (x, y - 1), (x, y + 1)] {
             let (lx, ly) = (nx - px + r, ny - py + r);
-            if nx < 0 || ny < 0 || nx >= w || ny >= h || signal(nx, ny) <= member {
+            if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                clipped = true;
+                continue;
+            }
+            if ctx.lit[(ny * w + nx) as usize] < ctx.lit_min {
+                clipped = true;
+            }
+            if signal(nx, ny) <= member {
                 continue;
             }
             if lx < 0 || ly < 0 || lx >= side || ly >= side {
@@ -294,7 +307,7 @@ pub fn snap_blob(
         return Err(SnapMiss::NotFound);
     }
     pixels.sort_unstable_by_key(|p| p.0);
-    Ok(Blob { centre: [(sx / sw) as f32, (sy / sw) as f32], energy: sw as f32, pixels, saturated })
+    Ok(Blob { centre: [(sx / sw) as f32, (sy / sw) as f32], energy: sw as f32, pixels, saturated, clipped })
 }
 
 /// The outcome of one dot image.
@@ -312,6 +325,8 @@ pub struct DotImageResult {
     pub truncated: usize,
     /// Blobs with a saturated pixel.
     pub saturated: usize,
+    /// Blobs cut by the edge of the projector's lit area ([`Blob::clipped`]).
+    pub clipped: usize,
     /// Noise standard deviation measured on this image (channel sum).
     pub noise_sigma: f32,
 }
@@ -367,6 +382,7 @@ pub fn snap_dot_image(
             match snap_blob(image, ctx, guess, radius, detect, member) {
                 Ok(blob) => {
                     out.saturated += blob.saturated as usize;
+                    out.clipped += blob.clipped as usize;
                     out.blobs.push((qy * pred.proj_width + qx, blob));
                 }
                 Err(SnapMiss::NotFound) => out.not_found += 1,
@@ -383,6 +399,8 @@ pub struct Dot {
     pub projector_px: [u32; 2],
     pub camera: [f32; 2],
     pub energy: f32,
+    /// See [`Blob::clipped`]: such a dot's centre does not refine correspondences.
+    pub clipped: bool,
 }
 
 /// Everything the transport step learns about one projector.
@@ -472,6 +490,7 @@ pub fn assemble(
                 projector_px: [q % proj_width, q / proj_width],
                 camera: b.centre,
                 energy: b.energy,
+                clipped: b.clipped,
             });
         }
     }
@@ -851,6 +870,16 @@ mod tests {
         errs.sort_by(f32::total_cmp);
         let median = errs[errs.len() / 2];
         assert!(median < 0.05, "median dot error {median} px");
+        // Dots on the projector's border spill light past the lit area's edge: clipped, their
+        // centres pulled inwards; interior dots are whole.
+        let border = |d: &Dot| d.projector_px[0] == 0 || d.projector_px[1] == 0;
+        let interior = |d: &Dot| {
+            (2..synth.proj_w - 2).contains(&d.projector_px[0])
+                && (2..synth.proj_h - 2).contains(&d.projector_px[1])
+        };
+        assert!(res.dots.iter().filter(|d| interior(d)).all(|d| !d.clipped));
+        let edge: Vec<&Dot> = res.dots.iter().filter(|d| border(d)).collect();
+        assert!(!edge.is_empty() && edge.iter().all(|d| d.clipped), "{edge:?}");
         // Interior footprints carry one projector pixel's worth of light: scale^2 camera px.
         let energy = footprint_energy(&res.transport, synth.proj_w, synth.proj_h);
         let q = 20 * synth.proj_w as usize + 20;

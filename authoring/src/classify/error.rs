@@ -41,6 +41,8 @@ pub enum ClassifyError {
     UnknownStroke { path: PathBuf, rgb: String },
     #[error("mask is {got_w}x{got_h}, the photo is {want_w}x{want_h}")]
     MaskSize { got_w: u32, got_h: u32, want_w: u32, want_h: u32 },
+    #[error("classify option {name} = {problem}")]
+    Option { name: &'static str, problem: String },
     #[error("the mask leaves no pixel of the object to classify")]
     EmptyMask,
 }

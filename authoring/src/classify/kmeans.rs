@@ -4,7 +4,9 @@
 //! result does not depend on the number of threads.
 //!
 //! The calibrated distance of Eq. 1 is Euclidean after scaling each channel by `sqrt(a_k)`,
-//! so the same engine runs ours and the plain baselines.
+//! so the same engine runs ours and the plain baselines. Ours may also give every cluster
+//! its own metric (a symmetric precision matrix, [`Precision`]): the squared Mahalanobis
+//! distance `(f - c)^T P (f - c)`, with Euclidean as `P = I`.
 
 use rayon::prelude::*;
 
@@ -53,6 +55,12 @@ impl Features {
     }
 }
 
+/// A cluster's metric: the symmetric 3x3 precision matrix `[p00, p11, p22, p01, p02, p12]`.
+pub type Precision = [f32; 6];
+
+/// The Euclidean metric.
+pub const IDENTITY: Precision = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+
 /// The outcome of Lloyd's iterations.
 #[derive(Clone, Debug)]
 pub struct KMeansResult {
@@ -70,6 +78,21 @@ pub struct KMeansResult {
 /// Cluster sums are accumulated in full on the first pass and then updated only by the pixels
 /// that change cluster, so later passes cost little more than the distance computations.
 pub fn lloyd(features: &Features, init: &[[f32; 3]], labels: &mut [u8], max_iterations: u32) -> KMeansResult {
+    lloyd_metric(features, init, None, labels, max_iterations)
+}
+
+/// [`lloyd`] with one metric per cluster (`None`: Euclidean for all). The metrics stay fixed;
+/// iterations move the centroids to their clusters' means.
+pub fn lloyd_metric(
+    features: &Features,
+    init: &[[f32; 3]],
+    metrics: Option<&[Precision]>,
+    labels: &mut [u8],
+    max_iterations: u32,
+) -> KMeansResult {
+    if let Some(m) = metrics {
+        assert_eq!(m.len(), init.len(), "one metric per cluster");
+    }
     assert!(!init.is_empty() && init.len() < MASKED as usize, "1..255 clusters");
     assert_eq!(labels.len(), features.len());
     let k = init.len();
@@ -79,7 +102,10 @@ pub fn lloyd(features: &Features, init: &[[f32; 3]], labels: &mut [u8], max_iter
     let mut converged = false;
     while iterations < max_iterations {
         iterations += 1;
-        let (changed, delta) = assign(features, &centroids, labels, iterations == 1);
+        let (changed, delta) = match metrics {
+            None => assign(features, &centroids, labels, iterations == 1),
+            Some(m) => assign_metric(features, &centroids, m, labels, iterations == 1),
+        };
         for (s, d) in sums.iter_mut().zip(&delta) {
             for j in 0..4 {
                 s[j] += d[j];
@@ -134,6 +160,34 @@ fn nearest(f: [f32; 3], cc: &[f32], c2: &[[f32; 3]]) -> u8 {
         }
     }
     best
+}
+
+/// [`assign`] under per-cluster metrics: argmin over clusters of `(f - c)^T P (f - c)`; ties
+/// go to the lower index.
+fn assign_metric(
+    features: &Features,
+    centroids: &[[f32; 3]],
+    metrics: &[Precision],
+    labels: &mut [u8],
+    first: bool,
+) -> (u64, Vec<[f64; 4]>) {
+    let cm: Vec<([f32; 3], Precision)> = centroids.iter().copied().zip(metrics.iter().copied()).collect();
+    assign_with(features, labels, first, centroids.len(), |f| {
+        let mut best = 0u8;
+        let mut best_d = f32::INFINITY;
+        for (j, (c, p)) in cm.iter().enumerate() {
+            let d = [f[0] - c[0], f[1] - c[1], f[2] - c[2]];
+            let v = p[0] * d[0] * d[0]
+                + p[1] * d[1] * d[1]
+                + p[2] * d[2] * d[2]
+                + 2.0 * (p[3] * d[0] * d[1] + p[4] * d[0] * d[2] + p[5] * d[1] * d[2]);
+            if v < best_d {
+                best_d = v;
+                best = j as u8;
+            }
+        }
+        best
+    })
 }
 
 /// [`assign`] with the cluster count known at compile time (the loops unroll).
@@ -282,6 +336,31 @@ mod tests {
             lloyd(&features, &init, &mut again, 100);
             prop_assert_eq!(labels, again);
         }
+    }
+
+    #[test]
+    fn per_cluster_metrics_follow_each_clusters_spread() {
+        // Two clusters at x = 0 and x = 10; the first is wide along x, the second narrow.
+        // Euclidean splits at x = 5; the metrics move the boundary towards the narrow one.
+        let xs: Vec<f32> = (0..=40).map(|i| i as f32 * 0.25).collect();
+        let n = xs.len();
+        let features = Features { c: [xs.clone(), vec![0.0; n], vec![0.0; n]] };
+        let init = [[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]];
+        let mut eu = vec![0u8; n];
+        lloyd(&features, &init, &mut eu, 1);
+        let wide = [1.0 / 16.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+        let narrow = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+        let mut ma = vec![0u8; n];
+        let res = lloyd_metric(&features, &init, Some(&[wide, narrow]), &mut ma, 1);
+        let first_of = |l: &[u8]| l.iter().position(|&v| v == 1).unwrap();
+        // Euclidean: x > 5. Metrics: (x/4)^2 > (10 - x)^2, x > 8 (ties go to the first).
+        assert_eq!(xs[first_of(&eu)], 5.25);
+        assert_eq!(xs[first_of(&ma)], 8.25);
+        assert_eq!(res.counts.iter().sum::<u64>(), n as u64);
+        // The identity metric is Euclidean.
+        let mut id = vec![0u8; n];
+        lloyd_metric(&features, &init, Some(&[IDENTITY, IDENTITY]), &mut id, 1);
+        assert_eq!(id, eu);
     }
 
     #[test]

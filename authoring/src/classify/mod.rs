@@ -13,7 +13,7 @@ pub mod picks;
 pub mod synthetic;
 pub mod weights;
 
-pub use calibrated::{Classification, ClassifyOptions, classify};
+pub use calibrated::{Classification, ClassifyOptions, DEFAULT_PRIOR_PICKS, classify};
 pub use error::ClassifyError;
 pub use palette::{LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, output_paths, preview};
 pub use picks::{PickColour, PickRect, Picks, picks_from_labels};

@@ -27,6 +27,10 @@ pub struct ClassifyArgs {
     /// the virtual stage), 50 = Lloyd's k-means to convergence as in the paper.
     #[arg(long, default_value_t = 1)]
     pub max_iterations: u32,
+    /// How many pseudo-picks of the plain Eq. 1 distance each colour's own spread (the
+    /// covariance of its picks) is shrunk towards; `inf` = the paper's Eq. 1 for every colour.
+    #[arg(long, default_value_t = classify::DEFAULT_PRIOR_PICKS)]
+    pub prior_picks: f64,
 }
 
 /// What one classification run did, for the summary line and the demo.
@@ -61,8 +65,8 @@ impl std::fmt::Display for ClassifySummary {
 }
 
 pub fn run(args: &ClassifyArgs) -> Result<()> {
-    let summary =
-        classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, args.max_iterations)?;
+    let opts = ClassifyOptions { max_iterations: args.max_iterations, prior_picks: args.prior_picks };
+    let summary = classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, &opts)?;
     println!("{summary}");
     Ok(())
 }
@@ -73,7 +77,7 @@ pub fn classify_files(
     picks_path: &Path,
     mask_path: Option<&Path>,
     out: &Path,
-    max_iterations: u32,
+    opts: &ClassifyOptions,
 ) -> Result<ClassifySummary> {
     let bar =
         ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}")?);
@@ -88,10 +92,9 @@ pub fn classify_files(
     };
     bar.set_message("fitting weights and clustering");
     let t0 = Instant::now();
-    let result = classify::classify(&photo, &picks, mask.as_deref(), &ClassifyOptions { max_iterations })
-        .with_context(|| {
-            format!("classifying {} with picks {}", photo_path.display(), picks_path.display())
-        })?;
+    let result = classify::classify(&photo, &picks, mask.as_deref(), opts).with_context(|| {
+        format!("classifying {} with picks {}", photo_path.display(), picks_path.display())
+    })?;
     let compute = t0.elapsed();
     bar.set_message("writing outputs");
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;

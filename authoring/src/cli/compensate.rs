@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
 use indicatif::{ProgressBar, ProgressStyle};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
+use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::stage_model::StageModel;
 
@@ -31,6 +32,10 @@ pub struct Args {
     /// Camera pixels per light-certificate point along each axis.
     #[arg(long, default_value_t = 2)]
     pub reduction: u32,
+    /// Where the per-pixel work runs (auto: a hardware GPU if there is one, else the CPU;
+    /// gpu: any adapter, lavapipe included). The light guarantee always runs on the CPU.
+    #[arg(long, value_enum, default_value_t = Device::Auto)]
+    pub device: Device,
     /// Output folder for the frames, the certificate and the report.
     #[arg(long)]
     pub out: PathBuf,
@@ -61,7 +66,7 @@ pub fn run(args: Args) -> Result<()> {
     bar.set_message("preparing geometry and the light certificate");
     let prep = Prepared::new(&stage, params.reduction).context("preparing the stage model")?;
     bar.set_message("computing frames and enforcing the light bound");
-    let comp = compensate::compensate_prepared(&stage, &prep, &target, &params)
+    let comp = compensate::compensate_on(&stage, &prep, &target, &params, args.device)
         .with_context(|| format!("compensating {}", restored.display()))?;
     bar.set_message("writing frames and report");
     compensate::io::save(&args.out, &comp, &params, &prep)?;

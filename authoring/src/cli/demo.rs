@@ -9,6 +9,7 @@ use anyhow::{Context, Result};
 use restage_authoring::acquire::AcquireConfig;
 use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::contact_sheet;
+use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::stage_sim::{SceneConfig, SceneName};
 
@@ -22,6 +23,10 @@ pub struct Args {
     /// Seed of the simulated stage.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Where compensation and relighting do their per-pixel work (auto: a hardware GPU if
+    /// there is one, else the CPU; gpu: any adapter, lavapipe included).
+    #[arg(long, value_enum, default_value_t = Device::Auto)]
+    pub device: Device,
 }
 
 /// The demo's capture: paper-sized projectors, a smaller camera and coarser dot grids and
@@ -64,7 +69,15 @@ pub fn run(args: &Args) -> Result<()> {
     let stage_dir = args.out.join("stage");
     let known =
         restage_authoring::calibrate::selfcal::KnownLength::Baseline { projector: 0, mm: baseline_mm };
-    let report = crate::cli::calibrate::calibrate(&capture_dir, &stage_dir, known, None)?;
+    // The conservator's lux-meter readings (one per projector at full white), taken on the
+    // virtual stage with its true physics; calibrate turns them into the lux scale.
+    let lux = simulated_lux_readings(&restage_authoring::stage_sim::VirtualStage::new(&scene)?)?;
+    tracing::info!(
+        "lux meter at camera pixel {:?}, facing each projector in turn: {}",
+        lux.reference_pixel,
+        lux.white.iter().map(|(k, v)| format!("{k}={v:.1}")).collect::<Vec<_>>().join(",")
+    );
+    let report = crate::cli::calibrate::calibrate(&capture_dir, &stage_dir, known, Some(&lux))?;
     tracing::info!(
         "step 2 (calibrate) done at {:.1} s: {} points, reprojection RMS {:.3} px, {}",
         start.elapsed().as_secs_f64(),
@@ -81,11 +94,11 @@ pub fn run(args: &Args) -> Result<()> {
         &picks,
         Some(&mask),
         &classify_dir,
-        1,
+        &restage_authoring::classify::ClassifyOptions::default(),
     )?;
     tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());
 
-    super::demo_chain::run_chain(&args.out, &capture_dir, &scene, &manifest, args.seed, start)?;
+    super::demo_chain::run_chain(&args.out, &capture_dir, &scene, &manifest, args.seed, args.device, start)?;
 
     tracing::info!(
         "demo finished in {:.1} s; results in {}",
@@ -93,6 +106,24 @@ pub fn run(args: &Args) -> Result<()> {
         args.out.display()
     );
     Ok(())
+}
+
+/// The lux-meter readings the virtual stage simulates (see `VirtualStage::lux_meter_session`).
+/// No ambient reading is given, so calibration counts the other projectors' black light and
+/// the stray light as this projector's (a little more lux than true: the safe side).
+pub fn simulated_lux_readings(
+    stage: &restage_authoring::stage_sim::VirtualStage,
+) -> Result<restage_authoring::calibrate::lux::LuxReadings> {
+    use restage_authoring::calibrate::lux::{LuxReadings, Meter};
+    let restage_authoring::stage_sim::LuxMeterSession { pixel, readings: values } = stage
+        .lux_meter_session()?
+        .context("no surface point is lit by every projector: nowhere to hold the lux meter")?;
+    Ok(LuxReadings {
+        white: values.into_iter().enumerate().collect(),
+        reference_pixel: Some(pixel),
+        meter: Meter::FacingProjector,
+        ambient: None,
+    })
 }
 
 /// Writes a contact sheet of a capture set: the photo, then one row per projector.

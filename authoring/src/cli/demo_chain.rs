@@ -13,6 +13,7 @@ use restage_authoring::classify::{LabelMap, picks_from_labels};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
 use restage_authoring::contact_sheet;
 use restage_authoring::eval::compensate::{TruePhysics, colour_error, true_peak};
+use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::relight::{self, Lighting};
 use restage_authoring::stage_model::StageModel;
@@ -28,6 +29,7 @@ pub fn run_chain(
     scene: &SceneConfig,
     manifest: &CaptureManifest,
     seed: u64,
+    device: Device,
     start: Instant,
 ) -> Result<()> {
     let mut summary = String::new();
@@ -39,13 +41,45 @@ pub fn run_chain(
     let at = || start.elapsed().as_secs_f64();
     let stage = VirtualStage::new(scene)?;
 
-    // Step 2: calibration. The geometry calibration does not yet produce the radiometry
-    // (per-pixel gain, ambient) compensation needs, so the demo uses the TRUE stage model the
-    // virtual stage wrote, and says so.
+    // Step 2: calibration. Compensation runs on the TRUE stage model the virtual stage wrote
+    // (geometry, correspondences, responses, gain), with one calibrated part: each projector's lux
+    // scale (`lux_at_1m`) from the simulated lux-meter readings, as `calibrate` fitted it. The
+    // summary says which is which; the visitor view below is rendered with the true physics.
     let truth_dir = capture_dir.join("ground-truth").join("stage");
-    let model = StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    let mut model =
+        StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    let calibrated_dir = out.join("stage");
+    let calibrated = StageModel::load(&calibrated_dir)
+        .with_context(|| format!("reading the calibrated stage model {}", calibrated_dir.display()))?;
+    let lux_calibrated = calibrated.projectors.len() == model.projectors.len()
+        && calibrated.projectors.iter().all(|p| p.lux_at_1m.is_finite() && p.lux_at_1m > 0.0);
+    let lux_line = if lux_calibrated {
+        let parts: Vec<String> = model
+            .projectors
+            .iter_mut()
+            .zip(&calibrated.projectors)
+            .enumerate()
+            .map(|(k, (t, c))| {
+                let line = format!(
+                    "proj {k} {:.1} (true {:.1}, {:+.2} %)",
+                    c.lux_at_1m,
+                    t.lux_at_1m,
+                    100.0 * (c.lux_at_1m - t.lux_at_1m) / t.lux_at_1m
+                );
+                t.lux_at_1m = c.lux_at_1m;
+                line
+            })
+            .collect();
+        format!("lux scale CALIBRATED from the simulated lux-meter readings, lx at 1 m: {}", parts.join(", "))
+    } else {
+        "lux scale TRUE (the calibrated model has no lux scale)".to_string()
+    };
+    // The model compensation and the bundle use, written so the bundle names what was used.
+    let model_dir = out.join("compensation-stage");
+    model.save(&model_dir).with_context(|| format!("writing {}", model_dir.display()))?;
     log(format!(
-        "compensation model: SUBSTITUTE — the geometry calibration above has no radiometry (gain, ambient) yet, so the TRUE stage model ({}) is used for compensation",
+        "compensation model ({}): SUBSTITUTE — geometry, correspondences, responses, vignetting and gain from the TRUE stage model ({}); {lux_line}",
+        model_dir.display(),
         truth_dir.display()
     ));
 
@@ -73,7 +107,13 @@ pub fn run_chain(
     })
     .save(&mask_path)?;
     let photo_path = capture_dir.join(&manifest.photo);
-    let cls = super::classify::classify_files(&photo_path, &picks_path, Some(&mask_path), &classify_dir, 50)?;
+    let cls = super::classify::classify_files(
+        &photo_path,
+        &picks_path,
+        Some(&mask_path),
+        &classify_dir,
+        &restage_authoring::classify::ClassifyOptions::default(),
+    )?;
     log(format!(
         "step 3 classify ({:.1} s): {cls}; picks drawn from the ground-truth label map (stand-in for clicks)",
         at()
@@ -81,14 +121,17 @@ pub fn run_chain(
 
     // Step 4: restore.
     let restore_dir = out.join("restore");
+    let defaults = restage_authoring::restore::RestoreParams::default();
     let rargs = super::restore::RestoreArgs {
         classify_dir: classify_dir.clone(),
         out: restore_dir.clone(),
-        alpha: 2.0,
-        beta: 3.0,
+        alpha: defaults.alpha,
+        beta: defaults.beta,
         gamma: None,
-        neighbours: 3,
-        scale: 20.0,
+        neighbours: defaults.neighbours,
+        scale: defaults.scale_px,
+        // The bare clay that chips and cracks expose is loss, as a conservator would say.
+        loss: present.iter().position(|&c| c == palette.clay).map(|k| k as u8).into_iter().collect(),
         regions: vec![],
         background: None,
         hints: None,
@@ -102,7 +145,7 @@ pub fn run_chain(
     let photo = LinearImage::load(&photo_path)?;
 
     // Step 5: relight one variant (soft key light, a third of the photo's material noise).
-    let relit = relight::relight(&model, &restored, &Lighting::default())?;
+    let relit = relight::relight_on(&model, &restored, &Lighting::default(), device)?;
     let relit = relight::infuse_noise(&model, &relit, &photo, 0.3, 3)?;
     relit.save_srgb8(&out.join("relit.png"), 1.0)?;
     log(format!("step 5 relight ({:.1} s): soft key light + 30 % of the photo's material noise", at()));
@@ -119,7 +162,7 @@ pub fn run_chain(
     ];
     let mut views = Vec::new();
     for (id, _, _, target) in &scenes {
-        let comp = compensate::compensate_prepared(&model, &prep, target, &params)?;
+        let comp = compensate::compensate_on(&model, &prep, target, &params, device)?;
         let dir = comp_dir.join(id);
         compensate::io::save(&dir, &comp, &params, &prep)?;
         if *id == "restored" {
@@ -176,7 +219,7 @@ pub fn run_chain(
     let _ = writeln!(
         desc,
         "version = 1\nstage = {:?}\ncertificate = {:?}\nvalid_days = 365\n",
-        truth_dir.display().to_string(),
+        model_dir.display().to_string(),
         comp_dir.join(compensate::io::CERTIFICATE_FILE).display().to_string()
     );
     let _ = writeln!(

@@ -44,6 +44,15 @@ pub enum EvalStep {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Contour restoration on every built-in scene against the pristine labels: ours and a
+    /// mode filter (`eval-restore` adds the Telea peer and writes pictures).
+    Restore {
+        /// Camera size of the simulated scenes, WIDTHxHEIGHT.
+        #[arg(long, default_value = "800x600")]
+        camera: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Light transport, responses, vignetting, black levels, lux and gain (paper §5.2) against
     /// the capture's ground-truth stage model.
     Transport {
@@ -80,6 +89,17 @@ pub fn run(args: EvalArgs) -> Result<()> {
         }
         EvalStep::Classify { capture, camera, seed, out } => {
             eval_classify(capture, camera, *seed, out.as_deref())?
+        }
+        EvalStep::Restore { camera, seed } => {
+            let (w, h) = camera
+                .split_once('x')
+                .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
+                .with_context(|| format!("--camera {camera}: expected WIDTHxHEIGHT, e.g. 800x600"))?;
+            eval::restore::evaluate_builtin(
+                [w, h],
+                *seed,
+                &restage_authoring::restore::RestoreParams::default(),
+            )?
         }
         EvalStep::Transport { capture, stage } => {
             let truth_dir = capture.join("ground-truth").join("stage");

@@ -57,7 +57,7 @@ pub fn run(args: &EvalRestoreArgs) -> Result<()> {
             .with_context(|| format!("writing {}", dir.display()))?;
         tracing::info!("{}: {:?}", scene.name, ours.stats);
         // Where restoration broke (red) and fixed (green) the classification, against truth.
-        let map = restage_authoring::eval::restore::class_map(&scene.classified, &scene.pristine);
+        let map = &scene.map;
         let diff = image::RgbImage::from_fn(camera[0], camera[1], |x, y| {
             let (c, o, p) = (scene.classified.get(x, y), ours.labels.get(x, y), scene.pristine.get(x, y));
             if p == 255 {

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
+use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::relight::{self, Lighting};
 use restage_authoring::stage_model::StageModel;
@@ -29,6 +30,9 @@ pub struct Args {
     /// Scale (px) below which the photo's variation counts as material noise.
     #[arg(long, default_value_t = 3)]
     pub noise_radius: usize,
+    /// Where the per-pixel shading runs (auto, cpu or gpu; see `compensate --help`).
+    #[arg(long, value_enum, default_value_t = Device::Auto)]
+    pub device: Device,
     /// Output PNG (8-bit sRGB); a side-by-side `<name>_compare.png` is written beside it.
     #[arg(long)]
     pub out: PathBuf,
@@ -47,7 +51,7 @@ pub fn run(args: Args) -> Result<()> {
         }
         None => Lighting::default(),
     };
-    let mut out = relight::relight(&stage, &texture, &lighting)?;
+    let mut out = relight::relight_on(&stage, &texture, &lighting, args.device)?;
     if let Some(photo) = &args.photo {
         let photo = LinearImage::load(photo).context("loading the photo")?;
         out = relight::infuse_noise(&stage, &out, &photo, args.noise, args.noise_radius)?;

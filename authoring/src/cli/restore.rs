@@ -22,7 +22,7 @@ pub struct RestoreArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Stop when every contour point's energy is at most alpha (> 0; paper 1..8). Smaller
-    /// smooths more: with --scale 20, alpha 2 smooths bends tighter than 10 px radius.
+    /// smooths more: with --scale 10, alpha 2 smooths bends tighter than 5 px radius.
     #[arg(long, default_value_t = 2.0)]
     pub alpha: f64,
     /// Emphasis on keeping the spacing to neighbouring contours (>= 1; paper 1.5..8).
@@ -36,8 +36,12 @@ pub struct RestoreArgs {
     #[arg(long, default_value_t = 3)]
     pub neighbours: usize,
     /// Length unit of the curvature in px (a circle of radius r has kappa = scale / r).
-    #[arg(long, default_value_t = 20.0)]
+    #[arg(long, default_value_t = 10.0)]
     pub scale: f64,
+    /// A class that stands for loss (bare clay in chips and cracks), repeatable: each of its
+    /// pixels takes the nearest other class before the contours are smoothed.
+    #[arg(long = "loss")]
+    pub loss: Vec<u8>,
     /// Region to restore, repeatable: `rect:X,Y,W,H`, `poly:X1,Y1,X2,Y2,X3,Y3,...` (pixel
     /// coordinates) or `mask:PATH.png`; append `@K` for its background class. Default: the
     /// whole image.
@@ -182,6 +186,7 @@ pub fn restore_files(args: &RestoreArgs) -> Result<RestoreSummary> {
         gamma: args.gamma,
         neighbours: args.neighbours,
         scale_px: args.scale,
+        loss_classes: args.loss.clone(),
         grid: parse_grid(&args.grid, w, h)?,
         ..RestoreParams::default()
     };

@@ -198,6 +198,79 @@ impl Certificate {
     }
 }
 
+/// How many runs of consecutive points [`Certificate::to_shared_parts`] cuts the certificate
+/// into (fixed, so nothing depends on the thread count).
+pub const PARTS: usize = 16;
+
+impl Certificate {
+    /// The certificate in the bundle's format cut into up to [`PARTS`] runs of consecutive
+    /// points, each with the index of its first point, so the appliance's single-threaded check
+    /// can run on the parts in parallel ([`independent_peak_parts`]).
+    pub fn to_shared_parts(&self) -> Vec<(u32, LightCertificate)> {
+        let n = self.points();
+        let step = n.div_ceil(PARTS).max(1);
+        (0..n.max(1))
+            .step_by(step)
+            .map(|a| {
+                let b = (a + step).min(n);
+                let part = LightCertificate {
+                    points: (b - a) as u32,
+                    point_px: self.point_px[a..b].to_vec(),
+                    projectors: self
+                        .projectors
+                        .iter()
+                        .map(|(w, h, blocks)| CertificateMap {
+                            width: *w,
+                            height: *h,
+                            footprints: blocks[a..b]
+                                .iter()
+                                .map(|b| Footprint {
+                                    x0: b.x0,
+                                    y0: b.y0,
+                                    x1: b.x1,
+                                    y1: b.y1,
+                                    lux_per_unit: b.lux_per_unit,
+                                })
+                                .collect(),
+                        })
+                        .collect(),
+                };
+                (a as u32, part)
+            })
+            .collect()
+    }
+}
+
+/// [`independent_peak`] over the parts of [`Certificate::to_shared_parts`], in parallel: the
+/// peak of the whole is the largest of the parts' peaks (the check is a maximum over
+/// independent points), the first on ties; any part's error is the result.
+pub fn independent_peak_parts(
+    light: &LightModel,
+    parts: &[(u32, LightCertificate)],
+    frames: &[image::RgbImage],
+) -> Result<PeakIrradiance, LightError> {
+    let xrgb: Vec<Vec<u8>> = frames.par_iter().map(|f| xrgb_from_rgb(f.as_raw())).collect();
+    let views: Vec<XrgbFrame<'_>> = frames
+        .iter()
+        .zip(&xrgb)
+        .map(|(f, x)| XrgbFrame { width: f.width(), height: f.height(), xrgb: x })
+        .collect();
+    let peaks: Vec<Result<PeakIrradiance, LightError>> = parts
+        .par_iter()
+        .map(|(first, cert)| {
+            max_irradiance(light, cert, &views).map(|p| PeakIrradiance { point: p.point + first, ..p })
+        })
+        .collect();
+    let mut best: Option<PeakIrradiance> = None;
+    for p in peaks {
+        let p = p?;
+        if best.as_ref().is_none_or(|b| p.lux > b.lux) {
+            best = Some(p);
+        }
+    }
+    best.ok_or_else(|| LightError::Certificate("the certificate has no parts".into()))
+}
+
 /// The bundle's light model for this stage and bound: the stage model's responses, black
 /// levels and brightness, max-channel lux, and the room light the certificate counts.
 pub fn light_model(stage: &StageModel, e_bound_lux: f64, margin: f64, ambient_lux: f64) -> LightModel {

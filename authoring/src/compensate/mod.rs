@@ -16,6 +16,7 @@
 
 pub mod certificate;
 pub mod geometry;
+pub mod gpu;
 pub mod guarantee;
 pub mod io;
 pub mod report;
@@ -34,6 +35,7 @@ pub use self::guarantee::Enforcement;
 use self::guarantee::bound_lux;
 use self::response::InverseResponse;
 pub use self::weights::Exponent;
+use crate::gpu::{Device, GpuError};
 use crate::imgio::LinearImage;
 use crate::stage_model::{StageModel, StageModelError};
 
@@ -75,6 +77,8 @@ pub enum CompensateError {
     IndependentCheck(LightError),
     #[error(transparent)]
     Stage(#[from] StageModelError),
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
 }
 
 /// What the conservator chooses.
@@ -174,6 +178,8 @@ pub struct Prepared {
     pub certificate: Certificate,
     /// Per certificate point, black-level irradiance (lux per channel, room light excluded).
     pub floor: Vec<[f64; 3]>,
+    /// The certificate in the bundle's format, in parts for the parallel independent check.
+    pub shared_parts: Vec<(u32, restage_shared::light::LightCertificate)>,
 }
 
 impl Prepared {
@@ -196,7 +202,8 @@ impl Prepared {
         let room = room_lux(stage, &geometry);
         let certificate = certificate::build(stage, &geometry, reduction, room);
         let floor = guarantee::floor_lux(stage, &certificate);
-        Ok(Self { geometry, inverse, certificate, floor })
+        let shared_parts = certificate.to_shared_parts();
+        Ok(Self { geometry, inverse, certificate, floor, shared_parts })
     }
 }
 
@@ -239,12 +246,25 @@ pub fn compensate(
     compensate_prepared(stage, &prep, target, params)
 }
 
-/// [`compensate`] with the target-independent work done once.
+/// [`compensate`] with the target-independent work done once, on the CPU reference path.
 pub fn compensate_prepared(
     stage: &StageModel,
     prep: &Prepared,
     target: &LinearImage,
     params: &Params,
+) -> Result<Compensation, CompensateError> {
+    compensate_on(stage, prep, target, params, Device::Cpu)
+}
+
+/// [`compensate_prepared`] with the per-pixel work on `device`. Whichever path made the
+/// frames, the guarantee and the independent check below run on the CPU: they are the
+/// authority.
+pub fn compensate_on(
+    stage: &StageModel,
+    prep: &Prepared,
+    target: &LinearImage,
+    params: &Params,
+    device: Device,
 ) -> Result<Compensation, CompensateError> {
     params.validate()?;
     let cam = &stage.camera;
@@ -256,8 +276,6 @@ pub fn compensate_prepared(
             want_h: cam.height,
         });
     }
-    let geom = &prep.geometry;
-    let (n, kn) = (geom.points, geom.projectors);
     let limit = params.limit();
 
     // Fix 2: black level (and room light) is light too. Refuse when it alone breaks the bound.
@@ -282,15 +300,80 @@ pub fn compensate_prepared(
         });
     }
     let t0 = std::time::Instant::now();
-    let mut weights = vec![0.0f32; n * kn];
-    weights
-        .par_chunks_mut(kn)
-        .zip(geom.l.par_chunks(kn))
-        .for_each(|(w, l)| weights::point_weights(l, params.m, w));
-    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: weights done");
+    let draft = match crate::gpu::select(device)? {
+        Some(g) => gpu::draft(g, stage, prep, target, params)?,
+        None => draft_cpu(stage, prep, target, params)?,
+    };
+    let Draft { weights, mut frames, scale, covered, by_bound, by_sat } = draft;
 
-    // The object points compensation works on, in raster order.
-    let idx: Vec<u32> = (0..n as u32)
+    // Fix 3: the guarantee, on the final 8-bit frames.
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: draft done");
+    let enf = guarantee::enforce(cert, &prep.inverse, &prep.floor, &mut frames, limit);
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, rounds = enf.rounds, "compensate: guarantee done");
+    let lux: Vec<f64> = cert
+        .point_of_pixel
+        .iter()
+        .map(|&pt| if pt == u32::MAX { 0.0 } else { enf.lux[pt as usize] })
+        .collect();
+    let peak_lux = enf.lux.iter().copied().fold(0.0, f64::max);
+    // The appliance's own check, written independently of ours, must agree before anything
+    // leaves this function.
+    let light = certificate::light_model(stage, params.e_bound_lux, params.margin, room);
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: enforce done");
+    let independent = certificate::independent_peak_parts(&light, &prep.shared_parts, &frames)
+        .and_then(|peak| check_bound(&light, "compensation", &peak).map(|()| peak))
+        .map_err(CompensateError::IndependentCheck)?;
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: independent check done");
+    debug_assert!(independent.lux >= peak_lux - 1e-6 * peak_lux.max(1.0));
+    tracing::info!(
+        scale,
+        peak_lux,
+        limit,
+        rounds = enf.rounds,
+        dimmed = enf.dimmed_pixels,
+        covered,
+        by_bound,
+        by_sat,
+        "compensation done"
+    );
+    Ok(Compensation {
+        frames,
+        weights,
+        lux,
+        light,
+        stats: Stats {
+            covered_points: covered,
+            limited_by_bound: by_bound,
+            limited_by_saturation: by_sat,
+            peak_lux,
+            peak_black_lux: peak_black,
+            room_lux: room,
+            certificate_points: cert.points(),
+            e_bound_lux: params.e_bound_lux,
+            limit_lux: limit,
+            scale,
+            rounds: enf.rounds,
+            dimmed_pixels: enf.dimmed_pixels,
+        },
+    })
+}
+
+/// Compensation before the guarantee: the weights, the global scale and the frames as
+/// computed (averaged and quantised), from either path.
+#[derive(Clone, Debug)]
+pub struct Draft {
+    pub weights: Vec<f32>,
+    pub frames: Vec<RgbImage>,
+    pub scale: f64,
+    pub covered: usize,
+    pub by_bound: usize,
+    pub by_sat: usize,
+}
+
+/// The object points compensation works on (covered, calibrated, finite target), in raster
+/// order.
+pub fn work_points(stage: &StageModel, geom: &Geometry, target: &LinearImage) -> Vec<u32> {
+    (0..geom.points as u32)
         .into_par_iter()
         .filter(|&i| {
             let i = i as usize;
@@ -298,7 +381,44 @@ pub fn compensate_prepared(
                 && stage.gain[i].iter().all(|g| g.is_finite() && *g > 0.0)
                 && target.data[i].iter().all(|v| v.is_finite())
         })
-        .collect();
+        .collect()
+}
+
+/// The global scale from every point's (bound, saturation) caps: the `clip_fraction`
+/// quantile of their minimum; and how many points each cap limits below it.
+pub fn global_scale(caps: &[(f64, f64)], clip_fraction: f64) -> (f64, usize, usize) {
+    let covered = caps.len();
+    let mut per_point: Vec<f64> = caps.iter().map(|(b, s)| b.min(*s)).collect();
+    let q = ((clip_fraction * covered as f64).floor() as usize).min(covered - 1);
+    let (_, &mut s, _) = per_point.select_nth_unstable_by(q, f64::total_cmp);
+    let scale = if s.is_finite() { s.max(0.0) } else { 0.0 };
+    let tol = 1.0 + 1e-9;
+    let by_bound = caps.iter().filter(|(b, _)| b * tol < scale).count();
+    let by_sat = caps.iter().filter(|(_, s)| s * tol < scale).count();
+    (scale, by_bound, by_sat)
+}
+
+/// The CPU reference for the per-pixel work: weights, scale, demand, splat, quantisation.
+pub fn draft_cpu(
+    stage: &StageModel,
+    prep: &Prepared,
+    target: &LinearImage,
+    params: &Params,
+) -> Result<Draft, CompensateError> {
+    let geom = &prep.geometry;
+    let (n, kn) = (geom.points, geom.projectors);
+    let limit = params.limit();
+    let cert = &prep.certificate;
+    let room = cert.ambient_lux;
+    let t0 = std::time::Instant::now();
+    let mut weights = vec![0.0f32; n * kn];
+    weights
+        .par_chunks_mut(kn)
+        .zip(geom.l.par_chunks(kn))
+        .for_each(|(w, l)| weights::point_weights(l, params.m, w));
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: weights done");
+
+    let idx = work_points(stage, geom, target);
     if idx.is_empty() {
         return Err(CompensateError::NoCoverage);
     }
@@ -346,13 +466,7 @@ pub fn compensate_prepared(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: caps done");
-    let mut per_point: Vec<f64> = caps.iter().map(|(b, s)| b.min(*s)).collect();
-    let q = ((params.clip_fraction * covered as f64).floor() as usize).min(covered - 1);
-    let (_, &mut s, _) = per_point.select_nth_unstable_by(q, f64::total_cmp);
-    let scale = if s.is_finite() { s.max(0.0) } else { 0.0 };
-    let tol = 1.0 + 1e-9;
-    let by_bound = caps.iter().filter(|(b, _)| b * tol < scale).count();
-    let by_sat = caps.iter().filter(|(_, s)| s * tol < scale).count();
+    let (scale, by_bound, by_sat) = global_scale(&caps, params.clip_fraction);
 
     // Per point demand (lux above black, per channel), clipped locally where needed.
     let demand: Vec<[f64; 3]> = idx
@@ -384,7 +498,7 @@ pub fn compensate_prepared(
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: demand done");
 
     // Splat each point's relative output onto the projector pixels around it (averaging).
-    let mut frames: Vec<RgbImage> = (0..kn)
+    let frames: Vec<RgbImage> = (0..kn)
         .into_par_iter()
         .map(|k| {
             let p = &stage.projectors[k];
@@ -432,57 +546,8 @@ pub fn compensate_prepared(
             frame
         })
         .collect();
-
-    // Fix 3: the guarantee, on the final 8-bit frames.
-    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: splat done");
-    let enf = guarantee::enforce(cert, &prep.inverse, &prep.floor, &mut frames, limit);
-    let lux: Vec<f64> = cert
-        .point_of_pixel
-        .iter()
-        .map(|&pt| if pt == u32::MAX { 0.0 } else { enf.lux[pt as usize] })
-        .collect();
-    let peak_lux = enf.lux.iter().copied().fold(0.0, f64::max);
-    // The appliance's own check, written independently of ours, must agree before anything
-    // leaves this function.
-    let light = certificate::light_model(stage, params.e_bound_lux, params.margin, room);
-    let shared = cert.to_shared();
-    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: enforce done");
-    let independent = certificate::independent_peak(&light, &shared, &frames)
-        .and_then(|peak| check_bound(&light, "compensation", &peak).map(|()| peak))
-        .map_err(CompensateError::IndependentCheck)?;
-    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: independent check done");
-    debug_assert!(independent.lux >= peak_lux - 1e-6 * peak_lux.max(1.0));
-    tracing::info!(
-        scale,
-        peak_lux,
-        limit,
-        rounds = enf.rounds,
-        dimmed = enf.dimmed_pixels,
-        covered,
-        by_bound,
-        by_sat,
-        "compensation done"
-    );
-    Ok(Compensation {
-        frames,
-        weights,
-        lux,
-        light,
-        stats: Stats {
-            covered_points: covered,
-            limited_by_bound: by_bound,
-            limited_by_saturation: by_sat,
-            peak_lux,
-            peak_black_lux: peak_black,
-            room_lux: room,
-            certificate_points: cert.points(),
-            e_bound_lux: params.e_bound_lux,
-            limit_lux: limit,
-            scale,
-            rounds: enf.rounds,
-            dimmed_pixels: enf.dimmed_pixels,
-        },
-    })
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: splat done (CPU)");
+    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat })
 }
 
 #[cfg(test)]

@@ -43,6 +43,12 @@ impl InverseResponse {
         self.nearest[q.min(STEPS - 1)]
     }
 
+    /// The look-up table behind [`Self::nearest`]: entry `q` is the level nearest to
+    /// `(q / (len - 1))^2` (the GPU path uploads it).
+    pub fn table(&self) -> &[u8] {
+        &self.nearest
+    }
+
     /// The largest 8-bit value whose output does not exceed `r` (never rounds light up).
     pub fn floor(&self, r: f32) -> u8 {
         let v = self.forward.partition_point(|&f| f <= r);

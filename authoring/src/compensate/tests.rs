@@ -189,6 +189,10 @@ proptest! {
         let prep = Prepared::new(&s.model, reduction).unwrap();
         let peak = certificate::independent_peak(&c.light, &prep.certificate.to_shared(), &c.frames).unwrap();
         prop_assert!(peak.lux <= p.limit(), "independent peak {} > {}", peak.lux, p.limit());
+        // The parallel check over certificate parts finds exactly the whole's peak.
+        let parts = certificate::independent_peak_parts(&c.light, &prep.shared_parts, &c.frames).unwrap();
+        prop_assert_eq!(parts.lux, peak.lux);
+        prop_assert_eq!(parts.point, peak.point);
         let tp = true_peak(&s, &c.frames);
         prop_assert!(tp <= e_bound, "true peak {} > E_bound {}", tp, e_bound);
     }

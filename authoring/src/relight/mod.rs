@@ -4,6 +4,8 @@
 //! high-frequency material noise infused back. Per camera pixel, using the stage model's
 //! points and normals; no rasteriser needed since the view is the camera's.
 
+pub mod gpu;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -19,6 +21,8 @@ pub enum RelightError {
     BadLight { index: usize, problem: String },
     #[error("{name} = {value} is invalid (expected {range})")]
     BadParam { name: &'static str, value: f64, range: &'static str },
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
 }
 
 /// A virtual light. Colours are linear RGB multipliers (1 = white of unit strength).
@@ -134,14 +138,27 @@ pub fn shade(point: [f64; 3], normal: [f64; 3], lighting: &Lighting) -> ([f64; 3
 }
 
 /// Relights `texture` (linear, camera space): `exposure * (texture * diffuse + specular)`
-/// where the stage knows the surface; unchanged elsewhere.
+/// where the stage knows the surface; unchanged elsewhere. The CPU reference path.
 pub fn relight(
     stage: &StageModel,
     texture: &LinearImage,
     lighting: &Lighting,
 ) -> Result<LinearImage, RelightError> {
+    relight_on(stage, texture, lighting, crate::gpu::Device::Cpu)
+}
+
+/// [`relight`] with the per-pixel shading on `device`.
+pub fn relight_on(
+    stage: &StageModel,
+    texture: &LinearImage,
+    lighting: &Lighting,
+    device: crate::gpu::Device,
+) -> Result<LinearImage, RelightError> {
     lighting.validate()?;
     check_size(stage, texture, "restored image")?;
+    if let Some(g) = crate::gpu::select(device)? {
+        return gpu::relight(g, stage, texture, lighting);
+    }
     let data = texture
         .data
         .par_iter()

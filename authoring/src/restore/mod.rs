@@ -2,6 +2,10 @@
 //! patches of one colour inside a region are outlined, their contours smoothed under the
 //! energy `e = kappa * R * B`, and rasterised back over the region's background colour.
 //!
+//! Per region, in this order: loss classes (bare clay) filled from the nearest other class;
+//! specks removed (smallest first) and small holes filled; the contours minimised and
+//! rasterised back over the background; specks and holes once more; the gamma guarantee.
+//!
 //! Units (so that the paper's ranges behave as it describes, see [`RestoreParams`]):
 //! - `kappa` is a turning angle over arc length, expressed relative to a length scale:
 //!   `kappa = scale_px * theta / L` (theta in radians, L in px). A circle of radius r px has
@@ -14,8 +18,9 @@
 //!   camera's full scale, linear light); `gamma` is in the same units.
 //!
 //! Coordinates: pixels are row-major with integer pixel-centre coordinates (ARCHITECTURE.md).
-//! Contours run along pixel sides; internally their vertices live on the *corner lattice*,
-//! where lattice point `(u, v)` is pixel coordinate `(u - 0.5, v - 0.5)`.
+//! Contours are traced along pixel sides on the *corner lattice*, where lattice point
+//! `(u, v)` is pixel coordinate `(u - 0.5, v - 0.5)`; the minimisation's points start at the
+//! midpoints of those sides.
 
 mod cleanup;
 mod contour;
@@ -30,7 +35,7 @@ pub mod synthetic;
 
 use thiserror::Error;
 
-pub use cleanup::{fill_holes, remove_specks};
+pub use cleanup::{fill_holes, fill_losses, remove_specks};
 pub use contour::{Contour, Patch, trace_patches};
 pub use hints::{HintMap, hints_from_rgba};
 pub use region::{Region, Shape};
@@ -136,8 +141,9 @@ pub struct RestoreParams {
     pub max_shift_px: f64,
     /// Safety cap on the number of moves, per initial contour point.
     pub max_moves_per_point: usize,
-    /// Classes that stand for loss (e.g. bare clay showing through chips): inside a region
-    /// they count as its background, so paint contours close over them.
+    /// Classes that stand for loss (e.g. bare clay showing through chips and cracks): inside
+    /// a region each loss pixel takes the class of the nearest pixel that is not loss, before
+    /// the minimisation smooths the contours through the filled chips.
     pub loss_classes: Vec<u8>,
 }
 
@@ -148,12 +154,13 @@ impl Default for RestoreParams {
             beta: 3.0,
             gamma: None,
             neighbours: 3,
-            scale_px: 20.0,
+
             reach_px: 48.0,
             spacing_window: 24,
             grid: (1, 1),
             expansion: 0.25,
             min_spacing_px: 0.2,
+            scale_px: 10.0,
             max_hole_px: 64,
             min_speck_px: 8,
             max_shift_px: 4.0,
@@ -213,6 +220,8 @@ pub struct RestoreStats {
     pub capped_cells: usize,
     pub holes_filled: usize,
     pub specks_removed: usize,
+    /// Loss pixels (`loss_classes`) filled with the nearest class before the minimisation.
+    pub loss_filled: usize,
     /// Pixels put back to their original class because they would brighten beyond gamma.
     pub clamped_pixels: usize,
 }
@@ -260,15 +269,18 @@ pub fn restore(
     }
     let mut stats = RestoreStats::default();
     for (r, mask) in regions.iter().zip(&masks) {
+        let fallback = r.background.unwrap_or_else(|| region::majority(&work, mask, n_classes));
+        stats.loss_filled += fill_losses(&mut work, w, h, mask, &params.loss_classes, fallback);
         let background = r.background.unwrap_or_else(|| region::majority(&work, mask, n_classes));
-        for (l, &m) in work.iter_mut().zip(mask) {
-            if m && params.loss_classes.contains(l) {
-                *l = background;
-            }
-        }
-        grid::restore_region(&mut work, &labels.data, w, h, mask, background, classes, params, &mut stats);
-        stats.holes_filled += fill_holes(&mut work, w, h, mask, background, params.max_hole_px);
+        // Noise removal and hole filling first (the classification's specks and the chips'
+        // holes are not contours to smooth: Laplacian flow would shrink each speck's contour
+        // and grow each hole's, rather than remove them), then the contours, then once more
+        // for what rasterising back left at anchors.
         stats.specks_removed += remove_specks(&mut work, w, h, mask, params.min_speck_px);
+        stats.holes_filled += fill_holes(&mut work, w, h, mask, background, params.max_hole_px);
+        grid::restore_region(&mut work, &labels.data, w, h, mask, background, classes, params, &mut stats);
+        stats.specks_removed += remove_specks(&mut work, w, h, mask, params.min_speck_px);
+        stats.holes_filled += fill_holes(&mut work, w, h, mask, background, params.max_hole_px);
         if let Some(gamma) = params.gamma {
             stats.clamped_pixels += cleanup::clamp_brightening(&mut work, &labels.data, mask, classes, gamma);
         }

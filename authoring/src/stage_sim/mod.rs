@@ -30,7 +30,7 @@ use crate::hw::{Camera, DiffuseLight, HwError, ProjectorOutput};
 use crate::imgio::{ImageError, LinearImage};
 use crate::stage_model::{StageModel, StageModelError, Transport};
 
-pub use self::truth::{GROUND_TRUTH_DIR, Truth, load_config};
+pub use self::truth::{GROUND_TRUTH_DIR, LUX_METER_FILE, Truth, load_config};
 
 /// Accepted camera sizes (each side).
 pub const CAMERA_RANGE: std::ops::RangeInclusive<u32> = 16..=8192;
@@ -61,6 +61,17 @@ pub enum StageSimError {
     Io { path: PathBuf, source: std::io::Error },
     #[error("{path}: {problem}")]
     Truth { path: PathBuf, problem: String },
+    #[error("lux meter at camera pixel {pixel:?}: {problem}")]
+    LuxMeter { pixel: [u32; 2], problem: String },
+}
+
+/// The simulated lux-meter readings: where the meter was held and one reading (lux) per
+/// projector at full white.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LuxMeterSession {
+    /// Camera pixel whose surface point the meter was held at.
+    pub pixel: [u32; 2],
+    pub readings: Vec<f64>,
 }
 
 /// The built-in objects.
@@ -399,6 +410,76 @@ impl VirtualStage {
                 m.map(|c| (c * s.g as f64) as f32)
             })
             .collect()
+    }
+
+    /// What a lux meter reads (lux) held at camera pixel `pixel`'s surface point with its
+    /// sensor facing projector `facing`, while projector `white` shows full white and every
+    /// other projector black (`white = None`: all black), room stray light on, diffuse light
+    /// off — the conservator's reading for `calibrate --lux-white`, with the true physics.
+    /// Each projector is a point source: its light on the sensor is its irradiance on the
+    /// surface there divided by the surface's cosine and multiplied by the sensor's; stray
+    /// light reads the same in every direction. Photopic: Rec. 709 luminance of the channels.
+    pub fn lux_meter(
+        &self,
+        pixel: [u32; 2],
+        white: Option<usize>,
+        facing: usize,
+    ) -> Result<f64, StageSimError> {
+        let cam = &self.setup.camera;
+        let err = |problem: String| StageSimError::LuxMeter { pixel, problem };
+        if pixel[0] >= cam.width || pixel[1] >= cam.height {
+            return Err(err(format!("outside the {}x{} camera image", cam.width, cam.height)));
+        }
+        let n = self.projector_count();
+        if facing >= n || white.is_some_and(|k| k >= n) {
+            return Err(err(format!("no such projector (expected 0..{n})")));
+        }
+        let i = (pixel[1] * cam.width + pixel[0]) as usize;
+        let px = &self.pixels[i];
+        if !px.is_object() {
+            return Err(err("not on the object".into()));
+        }
+        let x = V3::from(px.point.map(f64::from));
+        let normal = V3::from(px.normal.map(f64::from));
+        let dir = |k: usize| (self.setup.projectors[k].centre - x).normalize();
+        let sensor = dir(facing);
+        let mut reading = self.setup.stray_lux;
+        for k in 0..n {
+            let cos_surface = normal.dot(&dir(k));
+            if self.samples[k][i].g <= 0.0 || cos_surface <= 0.0 {
+                continue; // this projector does not light the point
+            }
+            let e = if white == Some(k) {
+                let p = &self.setup.projectors[k];
+                self.projector_lux(k, &RgbImage::from_pixel(p.width, p.height, image::Rgb([255; 3])))[i]
+            } else {
+                self.black_lux[k][i]
+            };
+            let y = 0.2126 * e[0] as f64 + 0.7152 * e[1] as f64 + 0.0722 * e[2] as f64;
+            reading += y / cos_surface * sensor.dot(&dir(k)).max(0.0);
+        }
+        Ok(reading)
+    }
+
+    /// The conservator's lux-meter session on this stage: the meter held at the surface point
+    /// every projector lights nearest the camera's principal point, facing each projector in
+    /// turn while it shows full white ([`lux_meter`](Self::lux_meter)). `None` when no point
+    /// is lit by all projectors.
+    pub fn lux_meter_session(&self) -> Result<Option<LuxMeterSession>, StageSimError> {
+        let cam = &self.setup.camera;
+        let (w, h) = (cam.width as usize, cam.height as usize);
+        let lit_by_all = |i: usize| self.samples.iter().all(|s| s[i].g > 0.0);
+        let d = |i: usize| ((i % w) as f64 - cam.cx).powi(2) + ((i / w) as f64 - cam.cy).powi(2);
+        let Some(i) =
+            (0..w * h).filter(|&i| lit_by_all(i)).min_by(|&a, &b| d(a).total_cmp(&d(b)).then(a.cmp(&b)))
+        else {
+            return Ok(None);
+        };
+        let pixel = [(i % w) as u32, (i / w) as u32];
+        let readings = (0..self.projector_count())
+            .map(|k| self.lux_meter(pixel, Some(k), k))
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Some(LuxMeterSession { pixel, readings }))
     }
 
     /// Irradiance in lux per camera pixel from all projectors showing `frames` (their black

@@ -207,3 +207,38 @@ fn built_in_scenes_have_sensible_light_levels_and_truth() {
         assert!(changed > 0 && changed < object / 5, "{scene:?}: {changed} changed");
     }
 }
+
+#[test]
+fn the_simulated_lux_meter_calibrates_the_true_lux_scale() {
+    use crate::calibrate::lux::{LuxReadings, Meter, apply_lux};
+    let stage = VirtualStage::new(&SceneConfig::tiny(SceneName::Jar, 3)).unwrap();
+    let LuxMeterSession { pixel, readings: values } = stage.lux_meter_session().unwrap().unwrap();
+    let truth = stage.truth();
+    // Facing projector k at full white: about lux_at_1m / d^2 (vignetting, black level and the
+    // others' black light make it differ by a few per cent), far more than all black.
+    for (k, &v) in values.iter().enumerate() {
+        let dark = stage.lux_meter(pixel, None, k).unwrap();
+        assert!(v > 100.0 && dark < 0.1 * v, "projector {k}: {v} lx lit, {dark} lx dark");
+    }
+    let mut model = truth.clone();
+    let readings = LuxReadings {
+        white: values.iter().copied().enumerate().collect(),
+        reference_pixel: Some(pixel),
+        meter: Meter::FacingProjector,
+        ambient: None,
+    };
+    apply_lux(&mut model, &readings).unwrap();
+    for (c, t) in model.projectors.iter().zip(&truth.projectors) {
+        let err = (c.lux_at_1m - t.lux_at_1m) / t.lux_at_1m;
+        // No ambient reading: the stray and other projectors' black light count as this one's,
+        // so the scale errs high (the safe side), by little.
+        assert!((0.0..0.03).contains(&err), "{} vs true {}", c.lux_at_1m, t.lux_at_1m);
+    }
+    // Bad meter positions are refused.
+    let err = stage.lux_meter([10_000, 0], Some(0), 0).unwrap_err();
+    assert!(err.to_string().contains("outside"), "{err}");
+    let off = stage.pixels().iter().position(|p| !p.is_object()).unwrap() as u32;
+    let w = stage.camera().width;
+    let err = stage.lux_meter([off % w, off / w], Some(0), 0).unwrap_err();
+    assert!(err.to_string().contains("not on the object"), "{err}");
+}

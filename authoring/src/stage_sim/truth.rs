@@ -87,6 +87,9 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> StageSimError + '_ {
     move |source| StageSimError::Io { path: path.into(), source }
 }
 
+/// The simulated lux-meter readings in the ground-truth folder (a `calibrate --lux-file`).
+pub const LUX_METER_FILE: &str = "lux_meter.toml";
+
 pub(super) fn write(stage: &VirtualStage, dir: &Path) -> Result<(), StageSimError> {
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let setup = stage.setup();
@@ -109,6 +112,21 @@ pub(super) fn write(stage: &VirtualStage, dir: &Path) -> Result<(), StageSimErro
             data: px.iter().map(|p| if pristine { p.albedo_pristine } else { p.albedo }).collect(),
         };
         img.save_linear16(&dir.join(name))?;
+    }
+    // The lux meter's readings in `calibrate --lux-file` form (see calibrate::lux).
+    if let Some(super::LuxMeterSession { pixel, readings }) = stage.lux_meter_session()? {
+        let mut text = format!(
+            "# What a lux meter reads on this virtual stage (true physics): held at camera pixel\n\
+             # {pixel:?}'s surface point, facing each projector in turn at full white, the others\n\
+             # black, room stray light on. For `restage-author calibrate --lux-file`.\n\
+             reference_pixel = [{}, {}]\nmeter = \"facing-projector\"\n[white]\n",
+            pixel[0], pixel[1]
+        );
+        for (k, v) in readings.iter().enumerate() {
+            text.push_str(&format!("{k} = {v:.3}\n"));
+        }
+        let path = dir.join(LUX_METER_FILE);
+        std::fs::write(&path, text).map_err(io(&path))?;
     }
     let palette_path = dir.join("palette.json");
     let text = serde_json::to_string_pretty(stage.palette()).expect("palette serialises");
