@@ -48,7 +48,7 @@ use restage_shared::light::{
     LightCertificate, LightModel, LuxWeighting, ProjectorLight, RESPONSE_LEVELS, xrgb_from_rgb,
 };
 use restage_shared::policy::{ExposurePolicy, IdleMode, Sensitivity};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
 use crate::stage_model::{StageModel, StageModelError};
@@ -71,14 +71,14 @@ pub enum ExportError {
     Bundle(#[from] restage_shared::bundle::BundleError),
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ObjectDesc {
     pub id: String,
     pub name: String,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct LightDesc {
     pub e_bound_lux: f64,
@@ -86,27 +86,36 @@ pub struct LightDesc {
     #[serde(default)]
     pub ambient_lux: f64,
     #[serde(default)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub lux_shares: Option<[f32; 3]>,
 }
 
-#[derive(Clone, Debug, Default, Deserialize)]
+#[derive(Clone, Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct PolicyDesc {
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub class: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub max_showing_s: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub cooldown_s: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub daily_budget_lxh: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub annual_budget_lxh: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub warn_at: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub idle: Option<String>,
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct ProjectorDesc {
     pub name: String,
     #[serde(default = "sixty")]
     pub refresh_hz: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub connector: Option<String>,
 }
 
@@ -114,24 +123,27 @@ fn sixty() -> f64 {
     60.0
 }
 
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SceneDesc {
     pub id: String,
     pub name: String,
     pub kind: String,
     pub frames: Vec<PathBuf>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub preview: Option<PathBuf>,
 }
 
 /// The bundle description file (see the module docs).
-#[derive(Clone, Debug, Deserialize)]
+#[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct BundleDescription {
     pub version: u64,
     pub stage: PathBuf,
     pub certificate: PathBuf,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub valid_days: Option<u32>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub not_before_unix_s: Option<i64>,
     pub object: ObjectDesc,
     pub light: LightDesc,

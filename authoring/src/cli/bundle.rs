@@ -28,6 +28,14 @@ pub struct BundleArgs {
 }
 
 pub fn run(args: &BundleArgs) -> Result<()> {
+    let manifest = write(args)?;
+    print!("{}", describe(&manifest, None));
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Signs and writes the bundle `args` describe; returns its manifest.
+pub fn write(args: &BundleArgs) -> Result<restage_shared::bundle::Manifest> {
     let created = match args.created {
         Some(t) => t,
         None => std::time::SystemTime::now()
@@ -60,7 +68,5 @@ pub fn run(args: &BundleArgs) -> Result<()> {
         }
     };
     std::fs::rename(&tmp, &args.out).with_context(|| format!("renaming into {}", args.out.display()))?;
-    print!("{}", describe(&manifest, None));
-    println!("wrote {}", args.out.display());
-    Ok(())
+    Ok(manifest)
 }

@@ -47,43 +47,22 @@ pub fn restored_path(p: &Path) -> PathBuf {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let params = Params {
-        e_bound_lux: args.ebound_lux,
-        m: args.m,
-        margin: args.margin,
-        clip_fraction: args.clip_fraction,
-        reduction: args.reduction,
-    };
-    params.validate()?;
+    let params = params(&args)?;
     let bar =
         ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})")?);
     bar.enable_steady_tick(std::time::Duration::from_millis(120));
     bar.set_message("loading the stage model");
     let stage = StageModel::load(&args.stage_dir)
         .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;
-    let restored = restored_path(&args.restored);
-    let target = LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
     bar.set_message("preparing geometry and the light certificate");
     let prep = Prepared::new(&stage, params.reduction).context("preparing the stage model")?;
     bar.set_message("computing frames and enforcing the light bound");
-    let comp = compensate::compensate_on(&stage, &prep, &target, &params, args.device)
-        .with_context(|| format!("compensating {}", restored.display()))?;
-    bar.set_message("writing frames and report");
-    compensate::io::save(&args.out, &comp, &params, &prep)?;
-    compensate::report::save(
-        &args.out.join("report"),
-        &comp,
-        &prep.geometry,
-        &params,
-        stage.camera.width,
-        stage.camera.height,
-    )?;
+    let s = run_prepared(&args, &stage, &prep)?;
     bar.finish_and_clear();
-    let s = &comp.stats;
     eprintln!(
         "{} frames in {}: peak {:.2} lx (limit {:.2} lx, E_bound {} lx), scale {:.4}, \
          limited by bound {:.2} % / saturation {:.2} % of {} points; report: {}",
-        comp.frames.len(),
+        stage.projectors.len(),
         args.out.display(),
         s.peak_lux,
         s.limit_lux,
@@ -95,4 +74,37 @@ pub fn run(args: Args) -> Result<()> {
         args.out.join("report/index.html").display()
     );
     Ok(())
+}
+
+/// The parameters the arguments ask for, checked.
+pub fn params(args: &Args) -> Result<Params> {
+    let params = Params {
+        e_bound_lux: args.ebound_lux,
+        m: args.m,
+        margin: args.margin,
+        clip_fraction: args.clip_fraction,
+        reduction: args.reduction,
+    };
+    params.validate()?;
+    Ok(params)
+}
+
+/// The command's work on a loaded stage model and its preparation for `args.reduction`
+/// (the interactive tool keeps both between runs): frames, certificate and report in `args.out`.
+pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<compensate::Stats> {
+    let params = params(args)?;
+    let restored = restored_path(&args.restored);
+    let target = LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
+    let comp = compensate::compensate_on(stage, prep, &target, &params, args.device)
+        .with_context(|| format!("compensating {}", restored.display()))?;
+    compensate::io::save(&args.out, &comp, &params, prep)?;
+    compensate::report::save(
+        &args.out.join("report"),
+        &comp,
+        &prep.geometry,
+        &params,
+        stage.camera.width,
+        stage.camera.height,
+    )?;
+    Ok(comp.stats)
 }

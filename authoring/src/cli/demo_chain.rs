@@ -3,7 +3,6 @@
 //! visitor sees with the virtual stage's TRUE physics, and write a contact sheet and a
 //! one-screen summary. Every figure in the summary is measured here, never assumed.
 
-use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
 
@@ -13,6 +12,9 @@ use restage_authoring::classify::{LabelMap, picks_from_labels};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
 use restage_authoring::contact_sheet;
 use restage_authoring::eval::compensate::{TruePhysics, colour_error, true_peak};
+use restage_authoring::export::{
+    BundleDescription, LightDesc, ObjectDesc, PolicyDesc, ProjectorDesc, SceneDesc,
+};
 use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::relight::{self, Lighting};
@@ -87,15 +89,7 @@ pub fn run_chain(
     // drawn from the ground-truth label map of the deteriorated object.
     let cam = stage.camera().clone();
     let palette = stage.palette();
-    let raw: Vec<u8> = stage.pixels().iter().map(|p| p.label).collect();
-    let present: Vec<u8> = (0..palette.classes.len() as u8).filter(|c| raw.contains(c)).collect();
-    let remap = |l: u8| present.iter().position(|&c| c == l).map_or(255, |i| i as u8);
-    let labels =
-        LabelMap { width: cam.width, height: cam.height, data: raw.iter().map(|&l| remap(l)).collect() };
-    let names: Vec<String> = present.iter().map(|&c| palette.classes[c as usize].name.clone()).collect();
-    let display: Vec<Option<[u8; 3]>> =
-        present.iter().map(|&c| Some(palette.classes[c as usize].srgb)).collect();
-    let picks = picks_from_labels(&labels, &names, &display, 12, seed)?;
+    let (picks, present) = stand_in_picks(&stage, seed)?;
     let classify_dir = out.join("classify");
     std::fs::create_dir_all(&classify_dir)?;
     let picks_path = classify_dir.join("picks.json");
@@ -215,36 +209,41 @@ pub fn run_chain(
     let key = restage_shared::keys::signing_key_from_seed(key_seed);
     let (private, public) = restage_shared::keys::write_keypair(&key, &keys.join("demo"))?;
     std::fs::copy(&public, trust.join("demo.pub.pem"))?;
-    let mut desc = String::new();
-    let _ = writeln!(
-        desc,
-        "version = 1\nstage = {:?}\ncertificate = {:?}\nvalid_days = 365\n",
-        model_dir.display().to_string(),
-        comp_dir.join(compensate::io::CERTIFICATE_FILE).display().to_string()
-    );
-    let _ = writeln!(
-        desc,
-        "[object]\nid = \"demo-{}\"\nname = \"virtual stage {} (seed {seed})\"\n",
-        scene.scene.name(),
-        scene.scene.name()
-    );
     let room = prep.certificate.ambient_lux;
-    let _ = writeln!(
-        desc,
-        "[light]\ne_bound_lux = {E_BOUND_LUX}\nsafety_margin = {MARGIN}\nambient_lux = {room}\n"
-    );
-    for k in 0..model.projectors.len() {
-        let _ = writeln!(desc, "[[projectors]]\nname = \"projector-{k}\"\nrefresh_hz = 60.0\n");
-    }
-    for (id, name, kind, _) in &scenes {
-        let frames: Vec<String> = (0..model.projectors.len())
-            .map(|k| comp_dir.join(id).join(compensate::io::frame_file(k)).display().to_string())
-            .collect();
-        let _ = writeln!(
-            desc,
-            "[[scenes]]\nid = {id:?}\nname = {name:?}\nkind = {kind:?}\nframes = {frames:?}\n"
-        );
-    }
+    let desc = BundleDescription {
+        version: 1,
+        stage: model_dir.clone(),
+        certificate: comp_dir.join(compensate::io::CERTIFICATE_FILE),
+        valid_days: Some(365),
+        not_before_unix_s: None,
+        object: ObjectDesc {
+            id: format!("demo-{}", scene.scene.name()),
+            name: format!("virtual stage {} (seed {seed})", scene.scene.name()),
+        },
+        light: LightDesc {
+            e_bound_lux: E_BOUND_LUX,
+            safety_margin: MARGIN,
+            ambient_lux: room,
+            lux_shares: None,
+        },
+        policy: PolicyDesc::default(),
+        projectors: (0..model.projectors.len())
+            .map(|k| ProjectorDesc { name: format!("projector-{k}"), refresh_hz: 60.0, connector: None })
+            .collect(),
+        scenes: scenes
+            .iter()
+            .map(|(id, name, kind, _)| SceneDesc {
+                id: id.to_string(),
+                name: name.to_string(),
+                kind: kind.to_string(),
+                frames: (0..model.projectors.len())
+                    .map(|k| comp_dir.join(id).join(compensate::io::frame_file(k)))
+                    .collect(),
+                preview: None,
+            })
+            .collect(),
+    };
+    let desc = toml::to_string(&desc).context("writing the bundle description")?;
     let desc_path = out.join("bundle.toml");
     std::fs::write(&desc_path, desc)?;
     let bundle_path = out.join("demo.restage");
@@ -292,4 +291,24 @@ pub fn run_chain(
     std::fs::write(&summary_path, &summary)?;
     eprintln!("\n{summary}");
     Ok(())
+}
+
+/// The demo's stand-in for a conservator's clicks: 12 seeded pixels per paint colour present
+/// on the object, drawn from the virtual stage's deteriorated labels (with their true display
+/// colours). Returns the picks and the palette indices of the colours, in pick order.
+pub fn stand_in_picks(
+    stage: &VirtualStage,
+    seed: u64,
+) -> Result<(restage_authoring::classify::Picks, Vec<u8>)> {
+    let cam = stage.camera();
+    let palette = stage.palette();
+    let raw: Vec<u8> = stage.pixels().iter().map(|p| p.label).collect();
+    let present: Vec<u8> = (0..palette.classes.len() as u8).filter(|c| raw.contains(c)).collect();
+    let remap = |l: u8| present.iter().position(|&c| c == l).map_or(255, |i| i as u8);
+    let labels =
+        LabelMap { width: cam.width, height: cam.height, data: raw.iter().map(|&l| remap(l)).collect() };
+    let names: Vec<String> = present.iter().map(|&c| palette.classes[c as usize].name.clone()).collect();
+    let display: Vec<Option<[u8; 3]>> =
+        present.iter().map(|&c| Some(palette.classes[c as usize].srgb)).collect();
+    Ok((picks_from_labels(&labels, &names, &display, 12, seed)?, present))
 }

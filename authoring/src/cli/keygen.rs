@@ -15,13 +15,19 @@ pub struct KeygenArgs {
 }
 
 pub fn run(args: &KeygenArgs) -> Result<()> {
+    let (id, private, public) = generate(&args.out)?;
+    println!("key id      {id}");
+    println!("private key {} (keep it secret; mode 0600)", private.display());
+    println!("public key  {} (copy into the appliance's trust directory)", public.display());
+    Ok(())
+}
+
+/// A new random key pair at `stem`.pem / `stem`.pub.pem: (key id, private, public).
+pub fn generate(stem: &std::path::Path) -> Result<(KeyId, PathBuf, PathBuf)> {
     let mut seed = [0u8; 32];
     rand::rngs::OsRng.fill_bytes(&mut seed);
     let key = signing_key_from_seed(seed);
     seed.fill(0);
-    let (private, public) = write_keypair(&key, &args.out).context("writing the key pair")?;
-    println!("key id      {}", KeyId::of(&key.verifying_key()));
-    println!("private key {} (keep it secret; mode 0600)", private.display());
-    println!("public key  {} (copy into the appliance's trust directory)", public.display());
-    Ok(())
+    let (private, public) = write_keypair(&key, stem).context("writing the key pair")?;
+    Ok((KeyId::of(&key.verifying_key()), private, public))
 }

@@ -69,7 +69,12 @@ pub fn load_frames(stage: &VirtualStage, dir: &Path) -> Result<Vec<RgbImage>> {
 pub fn run(args: &Args) -> Result<()> {
     let config = stage_sim::load_config(&args.capture)?;
     let stage = VirtualStage::new(&config)?;
-    let frames = load_frames(&stage, &args.frames)?;
+    run_with(args, &stage)
+}
+
+/// The command's work with the virtual stage already built (the interactive tool keeps it).
+pub fn run_with(args: &Args, stage: &VirtualStage) -> Result<()> {
+    let frames = load_frames(stage, &args.frames)?;
     let img = match args.noise_shot {
         Some(shot) => stage.capture(&frames, args.diffuse, shot)?,
         None => stage.render(&frames, args.diffuse)?,

@@ -12,7 +12,9 @@ use restage_authoring::restore::io::{
     BEFORE_AFTER_FILE, LABELS_FILE, RESTORED_FILE, class_info, display_colours, load_classified, load_hints,
     load_mask, save_rgb,
 };
-use restage_authoring::restore::{self, Region, RestoreParams, RestoreStats, Shape};
+use restage_authoring::restore::{
+    self, ClassInfo, HintMap, LabelMap, Region, RestoreParams, RestoreStats, Shape,
+};
 
 #[derive(Args, Debug, Clone)]
 pub struct RestoreArgs {
@@ -155,12 +157,19 @@ pub fn parse_region(text: &str, w: u32, h: u32, background: Option<u8>) -> Resul
     Ok(Region { shape, background: bg })
 }
 
-/// Reads the classification, restores it and writes the three outputs into `args.out`.
-pub fn restore_files(args: &RestoreArgs) -> Result<RestoreSummary> {
-    let bar =
-        ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}")?);
-    bar.enable_steady_tick(Duration::from_millis(120));
-    bar.set_message("reading the classification");
+/// What the restore step reads, parsed and checked: the classification, its display
+/// colours, the regions, the hint strokes and the parameters.
+pub struct RestoreInputs {
+    pub labels: LabelMap,
+    pub info: ClassInfo,
+    pub colours: Vec<[u8; 3]>,
+    pub regions: Vec<Region>,
+    pub hints: Option<HintMap>,
+    pub params: RestoreParams,
+}
+
+/// Reads and checks everything `args` names.
+pub fn load_inputs(args: &RestoreArgs) -> Result<RestoreInputs> {
     let (labels, palette) = load_classified(&args.classify_dir)
         .with_context(|| format!("reading classification {}", args.classify_dir.display()))?;
     let picks = match &args.picks {
@@ -190,9 +199,20 @@ pub fn restore_files(args: &RestoreArgs) -> Result<RestoreSummary> {
         grid: parse_grid(&args.grid, w, h)?,
         ..RestoreParams::default()
     };
+    Ok(RestoreInputs { labels, info: class_info(&palette), colours, regions, hints, params })
+}
+
+/// Reads the classification, restores it and writes the three outputs into `args.out`.
+pub fn restore_files(args: &RestoreArgs) -> Result<RestoreSummary> {
+    let bar =
+        ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}")?);
+    bar.enable_steady_tick(Duration::from_millis(120));
+    bar.set_message("reading the classification");
+    let RestoreInputs { labels, info, colours, regions, hints, params } = load_inputs(args)?;
+    let (w, h) = (labels.width, labels.height);
     bar.set_message(format!("restoring {w}x{h} in {}x{} cells", params.grid.0, params.grid.1));
     let t0 = Instant::now();
-    let restored = restore::restore(&labels, &class_info(&palette), &regions, hints.as_ref(), &params)
+    let restored = restore::restore(&labels, &info, &regions, hints.as_ref(), &params)
         .with_context(|| format!("restoring {}", args.classify_dir.display()))?;
     let compute = t0.elapsed();
     bar.set_message("writing outputs");

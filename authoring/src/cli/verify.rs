@@ -21,6 +21,13 @@ pub struct VerifyArgs {
 }
 
 pub fn run(args: &VerifyArgs) -> Result<()> {
+    print!("{}", report(args)?);
+    Ok(())
+}
+
+/// Verifies and returns the lines `verify` prints.
+pub fn report(args: &VerifyArgs) -> Result<String> {
+    use std::fmt::Write as _;
     let now = match args.now {
         Some(t) => t,
         None => super::now_unix_s()?,
@@ -30,7 +37,9 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
     let opts = VerifyOptions { now_unix_s: now, last_accepted: &last, limits: Limits::default() };
     let v = verify_file(&args.bundle, &args.trust, &opts)?;
     let m = &v.manifest;
-    println!(
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
         "OK {}: object {} version {}, {} scenes on {} projectors, signed by key {}",
         args.bundle.display(),
         m.object.id,
@@ -40,7 +49,8 @@ pub fn run(args: &VerifyArgs) -> Result<()> {
         v.key_id
     );
     for (s, p) in m.scenes.iter().zip(&v.peaks) {
-        println!("  {:<16} peak {:.2} lx (allowed {:.2} lx)", s.id, p.lux, m.light.allowed_lux());
+        let _ =
+            writeln!(out, "  {:<16} peak {:.2} lx (allowed {:.2} lx)", s.id, p.lux, m.light.allowed_lux());
     }
-    Ok(())
+    Ok(out)
 }

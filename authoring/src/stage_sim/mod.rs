@@ -30,7 +30,7 @@ use crate::hw::{Camera, DiffuseLight, HwError, ProjectorOutput};
 use crate::imgio::{ImageError, LinearImage};
 use crate::stage_model::{StageModel, StageModelError, Transport};
 
-pub use self::truth::{GROUND_TRUTH_DIR, LUX_METER_FILE, Truth, load_config};
+pub use self::truth::{GROUND_TRUTH_DIR, LUX_METER_FILE, TRUTH_FILE, Truth, load_config};
 
 /// Accepted camera sizes (each side).
 pub const CAMERA_RANGE: std::ops::RangeInclusive<u32> = 16..=8192;
