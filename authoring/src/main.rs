@@ -1,8 +1,9 @@
 //! `restage-author`: the command line over the authoring library.
 
 mod cli;
+mod gui;
 
-use anyhow::Result;
+use anyhow::{Result, anyhow};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -46,6 +47,8 @@ enum Command {
     Inspect(cli::inspect::InspectArgs),
     /// Verify a bundle exactly as the appliance does.
     Verify(cli::verify::VerifyArgs),
+    /// The interactive tool: picks, regions, hints and parameters over a project folder.
+    Gui(gui::GuiArgs),
 }
 
 fn main() -> Result<()> {
@@ -56,7 +59,17 @@ fn main() -> Result<()> {
         )
         .with_writer(std::io::stderr)
         .init();
-    match Cli::parse().command {
+    dispatch(Cli::parse().command)
+}
+
+/// Parses one command line (without the program's name) exactly as the program would.
+fn parse_line(args: &[String]) -> Result<Command> {
+    let argv = std::iter::once("restage-author".to_string()).chain(args.iter().cloned());
+    Cli::try_parse_from(argv).map(|c| c.command).map_err(|e| anyhow!("{}: {e}", args.join(" ")))
+}
+
+fn dispatch(command: Command) -> Result<()> {
+    match command {
         Command::Capture(args) => cli::capture::run(&args),
         Command::Calibrate(args) => cli::calibrate::run(args),
         Command::Decode(args) => cli::decode::run(args),
@@ -73,5 +86,6 @@ fn main() -> Result<()> {
         Command::Bundle(a) => cli::bundle::run(&a),
         Command::Inspect(a) => cli::inspect::run(&a),
         Command::Verify(a) => cli::verify::run(&a),
+        Command::Gui(a) => gui::run(a),
     }
 }

@@ -1,0 +1,410 @@
+//! The tool's background work: a worker thread runs the stale steps of the newest request,
+//! each as the command line `steps.sh` records (parsed by the CLI's own parser and run in this
+//! process, with the stage model, its preparation and the virtual stage kept between runs),
+//! sends progress, pictures and figures, and stops between steps when cancelled or superseded.
+//! A hint stroke's restoration is first computed for the visible part only, so the picture
+//! under the brush updates before the whole image is done.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{Receiver, Sender, TryRecvError, channel};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use image::RgbaImage;
+use restage_authoring::compensate::Prepared;
+use restage_authoring::imgio::LinearImage;
+use restage_authoring::restore::{self, Region, Shape};
+use restage_authoring::stage_model::StageModel;
+use restage_authoring::stage_sim::{self, VirtualStage};
+
+use super::doc::{HintLayer, NO_HINT, Scene, Small, Step, Steps};
+use super::project::{CLASSIFY_DIR, HINTS_FILE, Project, RELIT_FILE, RESTORE_DIR, fallback_colour};
+use super::views::ViewKind;
+use crate::Command;
+
+/// What the window asks for.
+#[derive(Clone, Debug)]
+pub struct Request {
+    pub generation: u64,
+    pub steps: Steps,
+    pub small: Small,
+    pub hints: Arc<HintLayer>,
+    /// The image pixels on screen `[x, y, w, h]`: a restoration runs there first.
+    pub visible: Option<[u32; 4]>,
+}
+
+/// A scene's light figures, from its `compensation.json`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SceneFigures {
+    pub peak_lux: f64,
+    pub limit_lux: f64,
+    pub e_bound_lux: f64,
+    pub scale: f64,
+    pub limited_by_bound: f64,
+}
+
+/// What the worker reports.
+#[derive(Debug)]
+pub enum Msg {
+    /// Step `done + 1` of `total` is starting (`step`).
+    Progress {
+        generation: u64,
+        done: usize,
+        total: usize,
+        step: Step,
+    },
+    /// The visible region's restoration, ahead of the whole: pixels `rect` of the restored view.
+    Partial {
+        generation: u64,
+        rect: [u32; 4],
+        image: RgbaImage,
+        seconds: f64,
+    },
+    /// A picture for a view, fresh from its step's output files.
+    Image {
+        view: ViewKind,
+        image: Arc<RgbaImage>,
+    },
+    Figures {
+        scene: Scene,
+        figures: SceneFigures,
+    },
+    StepDone {
+        generation: u64,
+        step: Step,
+        seconds: f64,
+    },
+    Done {
+        generation: u64,
+        seconds: f64,
+    },
+    Cancelled {
+        generation: u64,
+    },
+    /// A step failed; the steps after it did not run.
+    Failed {
+        generation: u64,
+        step: Option<Step>,
+        message: String,
+    },
+    /// A file could not be shown (named in the message); the step that makes it can be re-run.
+    Unreadable {
+        step: Step,
+        message: String,
+    },
+}
+
+/// The worker thread's handle.
+pub struct Worker {
+    requests: Sender<Request>,
+    pub messages: Receiver<Msg>,
+    cancel: Arc<AtomicBool>,
+}
+
+impl Worker {
+    /// Starts the worker on `project`; it first loads the pictures of every step on disk.
+    /// `wake` is called after each message (the window repaints).
+    pub fn start(project: Project, wake: impl Fn() + Send + 'static) -> Self {
+        let (requests, rx) = channel::<Request>();
+        let (tx, messages) = channel();
+        let cancel = Arc::new(AtomicBool::new(false));
+        let flag = cancel.clone();
+        std::thread::Builder::new()
+            .name("restage-gui-worker".into())
+            .spawn(move || {
+                let mut runner = Runner::new(project);
+                let mut send = |m: Msg| {
+                    let _ = tx.send(m);
+                    wake();
+                };
+                runner.load_all_views(&mut send);
+                let mut next: Option<Request> = None;
+                loop {
+                    let req = match next.take() {
+                        Some(r) => r,
+                        None => match rx.recv() {
+                            Ok(r) => r,
+                            Err(_) => return,
+                        },
+                    };
+                    flag.store(false, Ordering::SeqCst);
+                    let mut newer = None;
+                    let stop = || {
+                        flag.load(Ordering::SeqCst) || {
+                            // A newer request supersedes this one between steps.
+                            match rx.try_recv() {
+                                Ok(r) => {
+                                    newer = Some(r);
+                                    true
+                                }
+                                Err(TryRecvError::Empty) => false,
+                                Err(TryRecvError::Disconnected) => true,
+                            }
+                        }
+                    };
+                    let left = runner.run(&req, stop, &mut send);
+                    if let Some(mut n) = newer {
+                        // What this run did not get to is still stale under the newer document.
+                        n.steps = n.steps.union(left);
+                        next = Some(n);
+                    }
+                }
+            })
+            .expect("spawning the worker thread");
+        Self { requests, messages, cancel }
+    }
+
+    pub fn submit(&self, req: Request) {
+        let _ = self.requests.send(req);
+    }
+
+    /// Asks the running request to stop after its current step.
+    pub fn cancel(&self) {
+        self.cancel.store(true, Ordering::SeqCst);
+    }
+}
+
+/// Runs requests; owns what is kept between runs.
+pub struct Runner {
+    pub project: Project,
+    stage: Option<(PathBuf, u32, Arc<StageModel>, Arc<Prepared>)>,
+    virtual_stage: Option<Arc<VirtualStage>>,
+}
+
+impl Runner {
+    pub fn new(project: Project) -> Self {
+        Self { project, stage: None, virtual_stage: None }
+    }
+
+    /// Runs `req`'s steps in order, checking `stop` between steps. Returns the steps it did
+    /// not finish (empty when everything ran).
+    pub fn run(&mut self, req: &Request, mut stop: impl FnMut() -> bool, send: &mut dyn FnMut(Msg)) -> Steps {
+        let t0 = Instant::now();
+        let g = req.generation;
+        let steps: Steps =
+            req.steps.iter().filter(|s| self.project.can_run(*s, &req.small).is_ok()).collect();
+        let total = steps.len();
+        let mut left = steps;
+        if let Err(e) = self.project.save(&req.small, &req.hints) {
+            send(Msg::Failed { generation: g, step: None, message: format!("saving the project: {e:#}") });
+            return left;
+        }
+        for (done, step) in steps.iter().enumerate() {
+            if stop() {
+                send(Msg::Cancelled { generation: g });
+                return left;
+            }
+            send(Msg::Progress { generation: g, done, total, step });
+            let ts = Instant::now();
+            if let Err(e) = self.run_step(step, req, send) {
+                send(Msg::Failed { generation: g, step: Some(step), message: format!("{e:#}") });
+                return left;
+            }
+            left.remove(step);
+            send(Msg::StepDone { generation: g, step, seconds: ts.elapsed().as_secs_f64() });
+            self.load_views(step, send);
+        }
+        send(Msg::Done { generation: g, seconds: t0.elapsed().as_secs_f64() });
+        Steps::NONE
+    }
+
+    fn run_step(&mut self, step: Step, req: &Request, send: &mut dyn FnMut(Msg)) -> Result<()> {
+        let dir = self.project.dir.clone();
+        if step == Step::Restore {
+            self.write_hints(req)?;
+        }
+        let lines = self.project.commands(step, &req.small, &req.hints, &dir);
+        for (i, line) in lines.iter().enumerate() {
+            let command = crate::parse_line(line)?;
+            if step == Step::Restore
+                && let Command::Restore(args) = &command
+                && let Some(rect) = req.visible
+                && req.small.settings.restore.regions.is_empty()
+            {
+                self.restore_visible_first(args, rect, req.generation, send)?;
+            }
+            match command {
+                Command::Compensate(args) => {
+                    let (model, prep) = self.prepared(&args.stage_dir, args.reduction)?;
+                    crate::cli::compensate::run_prepared(&args, &model, &prep)?;
+                }
+                Command::Render(args) => {
+                    let stage = self.virtual_stage(&args.capture)?;
+                    if let Some(parent) = args.out.parent() {
+                        std::fs::create_dir_all(parent)?;
+                    }
+                    crate::cli::render::run_with(&args, &stage)?;
+                }
+                other => crate::dispatch(other)?,
+            }
+            tracing::debug!("{} line {} done", step.name(), i + 1);
+        }
+        Ok(())
+    }
+
+    /// The hint strokes PNG, in the display colours the restore step will match against
+    /// (the classification has just run, so its palette is current).
+    fn write_hints(&self, req: &Request) -> Result<()> {
+        let path = self.project.path(HINTS_FILE);
+        if req.hints.labels.iter().all(|&l| l == NO_HINT) {
+            return Ok(());
+        }
+        std::fs::create_dir_all(self.project.path(RESTORE_DIR))?;
+        let colours = self.project.class_colours(&req.small.picks);
+        req.hints.to_rgba(&colours).save(&path).with_context(|| format!("writing {}", path.display()))
+    }
+
+    /// Restores only `rect` (the visible pixels) and sends that part of the picture.
+    fn restore_visible_first(
+        &self,
+        args: &crate::cli::restore::RestoreArgs,
+        rect: [u32; 4],
+        generation: u64,
+        send: &mut dyn FnMut(Msg),
+    ) -> Result<()> {
+        let t0 = Instant::now();
+        let inputs = crate::cli::restore::load_inputs(args)?;
+        let [x, y, width, height] = rect;
+        let region = Region { shape: Shape::Rect { x, y, width, height }, background: args.background };
+        let restored = restore::restore(
+            &inputs.labels,
+            &inputs.info,
+            &[region],
+            inputs.hints.as_ref(),
+            &restore::RestoreParams { grid: (width.div_ceil(256), height.div_ceil(256)), ..inputs.params },
+        )?;
+        let full = restore::render_labels(&restored.labels, &inputs.colours);
+        let part = image::imageops::crop_imm(&full, x, y, width, height).to_image();
+        let image = image::DynamicImage::ImageRgb8(part).to_rgba8();
+        send(Msg::Partial { generation, rect, image, seconds: t0.elapsed().as_secs_f64() });
+        Ok(())
+    }
+
+    fn prepared(&mut self, dir: &Path, reduction: u32) -> Result<(Arc<StageModel>, Arc<Prepared>)> {
+        if let Some((d, r, m, p)) = &self.stage
+            && d == dir
+            && *r == reduction
+        {
+            return Ok((m.clone(), p.clone()));
+        }
+        let model = Arc::new(
+            StageModel::load(dir)
+                .with_context(|| format!("loading the stage model from {}", dir.display()))?,
+        );
+        let prep = Arc::new(Prepared::new(&model, reduction).context("preparing the stage model")?);
+        self.stage = Some((dir.to_path_buf(), reduction, model.clone(), prep.clone()));
+        Ok((model, prep))
+    }
+
+    fn virtual_stage(&mut self, capture: &Path) -> Result<Arc<VirtualStage>> {
+        if let Some(s) = &self.virtual_stage {
+            return Ok(s.clone());
+        }
+        let config = stage_sim::load_config(capture)?;
+        let s = Arc::new(VirtualStage::new(&config)?);
+        self.virtual_stage = Some(s.clone());
+        Ok(s)
+    }
+
+    /// Sends the pictures of every step whose outputs exist, and the photo.
+    pub fn load_all_views(&self, send: &mut dyn FnMut(Msg)) {
+        match LinearImage::load(&self.project.path(&self.project.paths.photo)) {
+            Ok(p) => send(Msg::Image { view: ViewKind::Photo, image: Arc::new(rgba(p.to_srgb8(1.0))) }),
+            Err(e) => send(Msg::Unreadable { step: Step::Classify, message: format!("{e:#}") }),
+        }
+        for step in Step::ALL {
+            if self.project.outputs(step).iter().all(|p| p.is_file()) {
+                self.load_views(step, send);
+            }
+        }
+    }
+
+    /// Reads a step's output files into pictures (and figures) for the window.
+    pub fn load_views(&self, step: Step, send: &mut dyn FnMut(Msg)) {
+        let p = &self.project;
+        let result = (|| -> Result<()> {
+            match step {
+                Step::Classify => {
+                    let (labels_path, _, preview_path) =
+                        restage_authoring::classify::output_paths(&p.path(CLASSIFY_DIR));
+                    send(Msg::Image { view: ViewKind::Classes, image: Arc::new(load_rgba(&preview_path)?) });
+                    let labels = restage_authoring::classify::LabelMap::load(&labels_path)?;
+                    let mut img = RgbaImage::new(labels.width, labels.height);
+                    for (px, &l) in img.pixels_mut().zip(&labels.data) {
+                        let c = if l == restage_authoring::classify::MASKED {
+                            [0; 3]
+                        } else {
+                            fallback_colour(l as usize)
+                        };
+                        px.0 = [c[0], c[1], c[2], 255];
+                    }
+                    send(Msg::Image { view: ViewKind::ClassesFalse, image: Arc::new(img) });
+                }
+                Step::Restore => {
+                    let path = p.path(RESTORE_DIR).join(restore::io::RESTORED_FILE);
+                    send(Msg::Image { view: ViewKind::Restored, image: Arc::new(load_rgba(&path)?) });
+                }
+                Step::Relight => {
+                    send(Msg::Image {
+                        view: ViewKind::Relit,
+                        image: Arc::new(load_rgba(&p.path(RELIT_FILE))?),
+                    });
+                }
+                s => {
+                    let scene = s.scene().expect("a compensation step");
+                    let dir = p.comp_dir(scene);
+                    let json = dir.join(restage_authoring::compensate::io::SUMMARY_FILE);
+                    let figures = read_figures(&json)?;
+                    send(Msg::Figures { scene, figures });
+                    let heat = dir.join("report").join("irradiance.png");
+                    send(Msg::Image {
+                        view: ViewKind::Irradiance(scene),
+                        image: Arc::new(load_rgba(&heat)?),
+                    });
+                    if p.has_virtual_stage() {
+                        let linear = p.preview_file(scene).1;
+                        let view = LinearImage::load(&linear)?;
+                        // Exposure normalised by the global scale, as the demo's contact sheet.
+                        let gain = (1.0 / figures.scale.max(1e-9)) as f32;
+                        send(Msg::Image {
+                            view: ViewKind::Visitor(scene),
+                            image: Arc::new(rgba(view.to_srgb8(gain))),
+                        });
+                    }
+                }
+            }
+            Ok(())
+        })();
+        if let Err(e) = result {
+            send(Msg::Unreadable { step, message: format!("{e:#}") });
+        }
+    }
+}
+
+fn read_figures(path: &Path) -> Result<SceneFigures> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a compensation summary", path.display()))?;
+    let stats = &v["stats"];
+    let f = |v: &serde_json::Value, k: &str| {
+        v[k].as_f64().with_context(|| format!("{}: no number '{k}'", path.display()))
+    };
+    let covered = f(stats, "covered_points")?.max(1.0);
+    Ok(SceneFigures {
+        peak_lux: f(stats, "peak_lux")?,
+        limit_lux: f(stats, "limit_lux")?,
+        e_bound_lux: f(&v, "e_bound_lux")?,
+        scale: f(stats, "scale")?,
+        limited_by_bound: f(stats, "limited_by_bound")? / covered,
+    })
+}
+
+fn load_rgba(path: &Path) -> Result<RgbaImage> {
+    Ok(image::open(path).with_context(|| format!("cannot read {}", path.display()))?.to_rgba8())
+}
+
+fn rgba(img: image::RgbImage) -> RgbaImage {
+    image::DynamicImage::ImageRgb8(img).to_rgba8()
+}

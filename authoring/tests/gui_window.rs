@@ -1,0 +1,194 @@
+//! `restage-author gui` in a real window: under Xvfb with Mesa's lavapipe (CPU Vulkan) the
+//! tool opens a small virtual-stage project, shows each view, and its screenshots are compared
+//! with the golden images in `tests/golden/gui/` within a tolerance. `RESTAGE_UPDATE_GOLDEN=1`
+//! rewrites them; every screenshot (and a difference image for a failing one) is kept under
+//! `$CARGO_TARGET_TMPDIR/gui-screenshots/` for a person to look at. Without Xvfb the tests fail
+//! naming the package, unless `RESTAGE_NO_GUI_OK=1`. Also: no graphics adapter and no display
+//! give a clear message, not a crash.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+const BIN: &str = env!("CARGO_BIN_EXE_restage-author");
+
+/// A private X server for one test, killed on drop.
+struct Xvfb {
+    child: Child,
+    display: String,
+}
+
+impl Drop for Xvfb {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn xvfb(n: u32) -> Option<Xvfb> {
+    if Command::new("Xvfb").arg("-help").stderr(Stdio::null()).stdout(Stdio::null()).status().is_err() {
+        if std::env::var_os("RESTAGE_NO_GUI_OK").is_some() {
+            eprintln!("skipped: no Xvfb (RESTAGE_NO_GUI_OK is set)");
+            return None;
+        }
+        panic!(
+            "Xvfb is missing: apt-get install xvfb mesa-vulkan-drivers (or set RESTAGE_NO_GUI_OK=1 to skip)"
+        );
+    }
+    // A display number of our own: tests run in parallel and CI may have others.
+    let n = 100 + (std::process::id() % 400) * 2 + n;
+    let display = format!(":{n}");
+    let child = Command::new("Xvfb")
+        .args([display.as_str(), "-screen", "0", "1280x800x24", "-nolisten", "tcp", "-noreset"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("starting Xvfb");
+    let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
+    let t0 = Instant::now();
+    while !socket.exists() {
+        assert!(t0.elapsed() < Duration::from_secs(20), "Xvfb did not start on {display}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    Some(Xvfb { child, display })
+}
+
+fn gui(display: &str) -> Command {
+    let mut c = Command::new(BIN);
+    c.arg("gui").env("DISPLAY", display).env_remove("WAYLAND_DISPLAY").env("RUST_LOG", "warn");
+    c
+}
+
+fn golden_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden/gui")
+}
+
+/// (fraction of pixels off by more than 24 levels in a channel, mean absolute difference).
+fn compare(a: &image::RgbImage, b: &image::RgbImage) -> (f64, f64, image::RgbImage) {
+    let mut diff = image::RgbImage::new(a.width(), a.height());
+    let (mut off, mut sum) = (0usize, 0u64);
+    for ((p, q), d) in a.pixels().zip(b.pixels()).zip(diff.pixels_mut()) {
+        let m = (0..3).map(|c| p.0[c].abs_diff(q.0[c])).max().unwrap();
+        sum += (0..3).map(|c| p.0[c].abs_diff(q.0[c]) as u64).sum::<u64>();
+        if m > 24 {
+            off += 1;
+            d.0 = [255, 0, 255];
+        } else {
+            d.0 = p.0.map(|v| v / 3);
+        }
+    }
+    let n = (a.width() * a.height()) as f64;
+    (off as f64 / n, sum as f64 / (3.0 * n), diff)
+}
+
+#[test]
+fn every_view_matches_its_golden_screenshot() {
+    let Some(x) = xvfb(0) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let project = tmp.path().join("project");
+    let st = Command::new(BIN)
+        .args(["gui", project.to_str().unwrap(), "--new-virtual", "vase", "--seed", "1"])
+        .args(["--camera", "320x240", "--projector", "256x192", "--no-window", "--run-missing"])
+        .env("RUST_LOG", "warn")
+        .status()
+        .unwrap();
+    assert!(st.success(), "making the project");
+    let shots = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("gui-screenshots");
+    let _ = std::fs::remove_dir_all(&shots);
+    let out = gui(&x.display)
+        .arg(&project)
+        .args(["--screenshots", shots.to_str().unwrap(), "--window", "1024x640"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "the scripted window failed:\n{stderr}");
+    let mut names: Vec<PathBuf> = std::fs::read_dir(&shots).unwrap().map(|e| e.unwrap().path()).collect();
+    names.sort();
+    assert_eq!(names.len(), 8, "one screenshot per view: {names:?}");
+    eprintln!("screenshots kept in {}", shots.display());
+    let update = std::env::var_os("RESTAGE_UPDATE_GOLDEN").is_some();
+    let golden = golden_dir();
+    std::fs::create_dir_all(&golden).unwrap();
+    let mut failures = Vec::new();
+    for shot in &names {
+        let name = shot.file_name().unwrap();
+        let g = golden.join(name);
+        if update {
+            std::fs::copy(shot, &g).unwrap();
+            continue;
+        }
+        let a = image::open(shot).unwrap().to_rgb8();
+        // A blank or single-colour screenshot would mean the view drew nothing.
+        let first = a.get_pixel(0, 0).0;
+        assert!(a.pixels().any(|p| p.0 != first), "{} is blank", shot.display());
+        let Ok(b) = image::open(&g) else {
+            failures.push(format!("{}: no golden image (run with RESTAGE_UPDATE_GOLDEN=1)", g.display()));
+            continue;
+        };
+        let b = b.to_rgb8();
+        if a.dimensions() != b.dimensions() {
+            failures.push(format!(
+                "{}: {:?} vs golden {:?}",
+                name.to_string_lossy(),
+                a.dimensions(),
+                b.dimensions()
+            ));
+            continue;
+        }
+        let (off, mean, diff) = compare(&a, &b);
+        eprintln!(
+            "{}: {:.3} % of pixels off, mean difference {mean:.3}",
+            name.to_string_lossy(),
+            100.0 * off
+        );
+        if off > 0.005 || mean > 1.5 {
+            let d = shots.join(format!("diff-{}", name.to_string_lossy()));
+            diff.save(&d).unwrap();
+            failures.push(format!(
+                "{}: {:.2} % pixels off, mean {mean:.2} (difference: {})",
+                name.to_string_lossy(),
+                100.0 * off,
+                d.display()
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "screenshots differ from the golden images:\n{}", failures.join("\n"));
+}
+
+#[test]
+fn no_graphics_adapter_is_a_clear_message() {
+    let Some(x) = xvfb(1) else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let photo = tmp.path().join("photo.png");
+    image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([x as u8 * 4, y as u8 * 5, 90])).save(&photo).unwrap();
+    let project = tmp.path().join("p");
+    let out = gui(&x.display)
+        .arg(&project)
+        .args(["--from-photo", photo.to_str().unwrap()])
+        // No Vulkan driver at all.
+        .env("VK_ICD_FILENAMES", tmp.path().join("none.json"))
+        .env("VK_DRIVER_FILES", tmp.path().join("none.json"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("no graphics adapter") && stderr.contains("--no-window"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
+
+#[test]
+fn no_display_is_a_clear_message() {
+    let tmp = tempfile::tempdir().unwrap();
+    let photo = tmp.path().join("photo.png");
+    image::RgbImage::from_fn(32, 24, |x, _| image::Rgb([x as u8, 0, 0])).save(&photo).unwrap();
+    let out = Command::new(BIN)
+        .args(["gui", tmp.path().join("p").to_str().unwrap(), "--from-photo", photo.to_str().unwrap()])
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(stderr.contains("cannot open the window"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}
