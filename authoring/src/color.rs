@@ -193,6 +193,22 @@ pub fn ciede2000(lab1: [f64; 3], lab2: [f64; 3]) -> f64 {
     (tl * tl + tc * tc + th * th + r_t * tc * th).max(0.0).sqrt()
 }
 
+/// Distinct 8-bit sRGB colours for things that are told apart by colour alone (projectors in
+/// reports, classes in false colour), cycling after eight.
+pub fn categorical(i: usize) -> [u8; 3] {
+    const COLOURS: [[u8; 3]; 8] = [
+        [230, 80, 60],
+        [70, 170, 80],
+        [60, 110, 230],
+        [220, 180, 40],
+        [170, 70, 200],
+        [40, 190, 200],
+        [240, 130, 180],
+        [150, 150, 150],
+    ];
+    COLOURS[i % COLOURS.len()]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

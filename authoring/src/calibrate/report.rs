@@ -7,18 +7,6 @@ use image::{Rgb, RgbImage, imageops};
 use super::decode::ProjectorDecode;
 use super::triangulate::DenseGeometry;
 
-/// Colours of projectors 0, 1, 2, ... in the histogram and coverage borders.
-const COLOURS: [[u8; 3]; 8] = [
-    [230, 80, 60],
-    [70, 170, 80],
-    [60, 110, 230],
-    [220, 180, 40],
-    [170, 70, 200],
-    [40, 190, 200],
-    [240, 130, 180],
-    [150, 150, 150],
-];
-
 const PANEL: u32 = 320;
 
 fn panel(img: &RgbImage) -> RgbImage {
@@ -49,7 +37,7 @@ pub fn histogram(residuals: &[Vec<f32>], max_px: f32, width: u32, height: u32) -
             }
         }
         let peak = counts.iter().copied().max().unwrap_or(0).max(1) as f32;
-        let colour = Rgb(COLOURS[k % COLOURS.len()]);
+        let colour = Rgb(crate::color::categorical(k));
         let plot_h = (height - 20) as f32;
         let mut prev: Option<u32> = None;
         for (b, &c) in counts.iter().enumerate() {
@@ -125,7 +113,7 @@ pub fn render(decodes: &[ProjectorDecode], dense: &DenseGeometry, pw: &[(u32, u3
         .map(|i| panel(&i))
         .collect();
     for (k, p) in top.iter_mut().enumerate() {
-        let c = Rgb(COLOURS[k % COLOURS.len()]);
+        let c = Rgb(crate::color::categorical(k));
         let (pw, ph) = p.dimensions();
         for x in 0..pw {
             for t in 0..3 {
@@ -160,8 +148,9 @@ mod tests {
         let res = vec![vec![0.5f32; 100], vec![f32::NAN; 10]];
         let img = histogram(&res, 1.0, 220, 100);
         // The curve of projector 0 reaches the top only near 0.5 px (x = 10 + 100).
-        let top_row: Vec<u32> =
-            (0..220).filter(|&x| img.get_pixel(x, 100 - 13 - 80) == &Rgb(COLOURS[0])).collect();
+        let top_row: Vec<u32> = (0..220)
+            .filter(|&x| img.get_pixel(x, 100 - 13 - 80) == &Rgb(crate::color::categorical(0)))
+            .collect();
         assert!(!top_row.is_empty() && top_row.iter().all(|&x| (105..=115).contains(&x)), "{top_row:?}");
     }
 }

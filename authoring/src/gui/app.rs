@@ -21,7 +21,7 @@ use super::doc::{
     Doc, HintDiff, NO_HINT, RegionSpec, Scene, Small, Step, Steps, directional, light_angles, new_class,
 };
 use super::jobs::{Msg, Request, SceneFigures, Worker};
-use super::project::{Opened, Problem, Project, fallback_colour};
+use super::project::{Opened, Problem, Project};
 use super::views::{ViewKind, ViewTransform};
 
 /// Opens the window on a project; returns when it is closed.
@@ -118,6 +118,10 @@ enum ScriptKind {
     Bench {
         out: PathBuf,
         frame_ms: Vec<f64>,
+        /// Frame times while the stroke's steps run in the background (still panning).
+        busy_ms: Vec<f64>,
+        /// CPU time of each idle panning frame (egui's share of the frame time).
+        cpu_ms: Vec<f64>,
         last: Option<Instant>,
         stroke_at: Option<Instant>,
         partial_ms: Option<f64>,
@@ -155,6 +159,8 @@ impl Script {
             kind: ScriptKind::Bench {
                 out,
                 frame_ms: Vec::new(),
+                busy_ms: Vec::new(),
+                cpu_ms: Vec::new(),
                 last: None,
                 stroke_at: None,
                 partial_ms: None,
@@ -197,6 +203,8 @@ struct App {
     class: usize,
     brush: f32,
     show_hints: bool,
+    /// No stroke anywhere: the overlay is not drawn at all.
+    hints_empty: bool,
     stroke: Option<(HintDiff, [f64; 2])>,
     drag_from: Option<[f32; 2]>,
     polygon: Vec<[f64; 2]>,
@@ -210,6 +218,8 @@ struct App {
     export_result: Option<Result<String, String>>,
     frame_times: Vec<f32>,
     last_frame: Option<Instant>,
+    /// The previous frame's CPU time in egui (eframe's measure), seconds.
+    last_cpu: Option<f32>,
     script: Option<Script>,
     failure: Arc<Mutex<Option<String>>>,
 }
@@ -245,6 +255,7 @@ impl App {
             class: 0,
             brush: 4.0,
             show_hints: true,
+            hints_empty: true,
             stroke: None,
             drag_from: None,
             polygon: Vec::new(),
@@ -258,6 +269,7 @@ impl App {
             export_result: None,
             frame_times: Vec::new(),
             last_frame: None,
+            last_cpu: None,
             script,
             failure,
         };
@@ -344,6 +356,12 @@ impl App {
 
     /// Re-uploads the hint overlay (all of it, or the pixels `rect`).
     fn refresh_hint_texture(&mut self, ctx: &egui::Context, rect: Option<[u32; 4]>) {
+        self.hints_empty = match rect {
+            None => self.doc.hints.is_empty(),
+            // A partial update only ever follows painting or erasing: check the whole layer
+            // only when erasing could have emptied it.
+            Some(_) => self.hints_empty && self.doc.hints.is_empty(),
+        };
         let colours = self.class_colours();
         let h = &self.doc.hints;
         let [x, y, w, hh] = rect.unwrap_or([0, 0, h.width, h.height]);
@@ -507,7 +525,8 @@ impl eframe::App for App {
         [0.05, 0.05, 0.05, 1.0]
     }
 
-    fn ui(&mut self, ui: &mut egui::Ui, _frame: &mut eframe::Frame) {
+    fn ui(&mut self, ui: &mut egui::Ui, frame: &mut eframe::Frame) {
+        self.last_cpu = frame.info().cpu_usage;
         let ctx = ui.ctx().clone();
         let now = Instant::now();
         if let Some(last) = self.last_frame {
@@ -526,7 +545,9 @@ impl eframe::App for App {
             egui::ScrollArea::vertical().auto_shrink([false, false]).show(ui, |ui| self.side_panel(ui));
         });
         egui::CentralPanel::default()
-            .frame(egui::Frame::NONE.fill(Color32::from_gray(20)))
+            // No fill: the clear colour is the background (on a software rasteriser every
+            // full-canvas pass costs frame time).
+            .frame(egui::Frame::NONE)
             .show(ui, |ui| self.canvas(ui));
         self.windows(&ctx);
 
@@ -716,7 +737,7 @@ impl App {
         let mut remove = None;
         for (i, c) in w.picks.colours.iter_mut().enumerate() {
             ui.horizontal(|ui| {
-                let col = colours.get(i).copied().unwrap_or(fallback_colour(i));
+                let col = colours.get(i).copied().unwrap_or(restage_authoring::color::categorical(i));
                 let (rect, _) = ui.allocate_exact_size(egui::vec2(14.0, 14.0), Sense::hover());
                 ui.painter().rect_filled(rect, 2.0, Color32::from_rgb(col[0], col[1], col[2]));
                 if ui
@@ -1109,16 +1130,29 @@ impl App {
             Pos2::new(area.min.x + r[0], area.min.y + r[1]),
             Pos2::new(area.min.x + r[2], area.min.y + r[3]),
         );
-        let uv = Rect::from_min_max(Pos2::ZERO, Pos2::new(1.0, 1.0));
+        // Only the visible part of the picture becomes a quad (with the matching texture
+        // coordinates): a quad reaching far outside the window costs a software rasteriser
+        // (and lavapipe was seen to stall on two such quads at 1:1 on a 10 MP photo).
+        let visible_quad = |clip: Rect| -> Option<(Rect, Rect)> {
+            let vis = img_rect.intersect(clip.intersect(area));
+            (vis.width() > 0.0 && vis.height() > 0.0).then(|| {
+                let u = |x: f32| (x - img_rect.min.x) / img_rect.width();
+                let v = |y: f32| (y - img_rect.min.y) / img_rect.height();
+                (
+                    vis,
+                    Rect::from_min_max(
+                        Pos2::new(u(vis.min.x), v(vis.min.y)),
+                        Pos2::new(u(vis.max.x), v(vis.max.y)),
+                    ),
+                )
+            })
+        };
         let draw = |view: ViewKind, clip: Rect| -> bool {
             match self.textures.get(&view) {
                 Some(tex) => {
-                    painter.with_clip_rect(clip.intersect(area)).image(
-                        tex.handle.id(),
-                        img_rect,
-                        uv,
-                        Color32::WHITE,
-                    );
+                    if let Some((rect, uv)) = visible_quad(clip) {
+                        painter.image(tex.handle.id(), rect, uv, Color32::WHITE);
+                    }
                     true
                 }
                 None => false,
@@ -1172,10 +1206,13 @@ impl App {
             }
         }
         if self.show_hints
+            && !self.hints_empty
             && let Some(h) = &self.hint_tex
             && h.size == size
         {
-            painter.with_clip_rect(area).image(h.handle.id(), img_rect, uv, Color32::WHITE);
+            if let Some((rect, uv)) = visible_quad(area) {
+                painter.image(h.handle.id(), rect, uv, Color32::WHITE);
+            }
         }
         self.overlays(&painter, area, t);
         if self.shown == Shown::BeforeAfter {
@@ -1233,7 +1270,7 @@ impl App {
             heat_legend(&p, area, f.e_bound_lux);
         }
         for (i, c) in self.working.picks.colours.iter().enumerate().filter(|_| picks_shown) {
-            let col = colours.get(i).copied().unwrap_or(fallback_colour(i));
+            let col = colours.get(i).copied().unwrap_or(restage_authoring::color::categorical(i));
             let fill = Color32::from_rgb(col[0], col[1], col[2]);
             for px in &c.pixels {
                 let q = at([px[0] as f64, px[1] as f64]);
@@ -1482,7 +1519,17 @@ impl App {
                     }
                 }
             }
-            ScriptKind::Bench { out, frame_ms, last, stroke_at, partial_ms, full_ms, partial_px } => {
+            ScriptKind::Bench {
+                out,
+                frame_ms,
+                busy_ms,
+                cpu_ms,
+                last,
+                stroke_at,
+                partial_ms,
+                full_ms,
+                partial_px,
+            } => {
                 const PAN_FRAMES: usize = 300;
                 let now = Instant::now();
                 match script.step {
@@ -1507,12 +1554,10 @@ impl App {
                     1 => {
                         if let Some(l) = *last {
                             frame_ms.push((now - l).as_secs_f64() * 1e3);
+                            cpu_ms.extend(self.last_cpu.map(|c| c as f64 * 1e3));
                         }
                         *last = Some(now);
-                        let k = frame_ms.len() as f32 * 0.05;
-                        if let Some(t) = &mut self.transform {
-                            t.pan([6.0 * k.cos(), 6.0 * k.sin()]);
-                        }
+                        pan_circle(&mut self.transform, frame_ms.len());
                         if frame_ms.len() >= PAN_FRAMES {
                             script.step = 2;
                         }
@@ -1533,9 +1578,22 @@ impl App {
                         Ok(())
                     }
                     _ => {
+                        if let Some(l) = *last {
+                            busy_ms.push((now - l).as_secs_f64() * 1e3);
+                        }
+                        *last = Some(now);
+                        pan_circle(&mut self.transform, frame_ms.len() + busy_ms.len());
                         if full_ms.is_some() || script.started.elapsed() > Duration::from_secs(900) {
-                            let r =
-                                write_bench(out, frame_ms, *partial_ms, *full_ms, *partial_px, self.size());
+                            let r = write_bench(
+                                out,
+                                frame_ms,
+                                cpu_ms,
+                                busy_ms,
+                                *partial_ms,
+                                *full_ms,
+                                *partial_px,
+                                self.size(),
+                            );
                             ctx.send_viewport_cmd(egui::ViewportCommand::Close);
                             self.script = None;
                             if let Err(e) = r {
@@ -1576,24 +1634,38 @@ fn save_shot(img: &ColorImage, path: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Pans along a slow circle, 6 points a frame.
+fn pan_circle(t: &mut Option<ViewTransform>, frame: usize) {
+    let k = frame as f32 * 0.05;
+    if let Some(t) = t {
+        t.pan([6.0 * k.cos(), 6.0 * k.sin()]);
+    }
+}
+
+/// Count, median, p95 and max of frame times (ms).
+fn frame_stats(v: &[f64]) -> serde_json::Value {
+    let mut sorted = v.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let q =
+        |f: f64| sorted.get(((sorted.len() as f64 - 1.0) * f).round() as usize).copied().unwrap_or(f64::NAN);
+    serde_json::json!({ "frames": sorted.len(), "median_ms": q(0.5), "p95_ms": q(0.95), "max_ms": q(1.0) })
+}
+
 fn write_bench(
     out: &Path,
     frame_ms: &[f64],
+    cpu_ms: &[f64],
+    busy_ms: &[f64],
     partial: Option<f64>,
     full: Option<f64>,
     partial_px: u64,
     size: [u32; 2],
 ) -> Result<()> {
-    let mut sorted = frame_ms.to_vec();
-    sorted.sort_by(f64::total_cmp);
-    let q =
-        |f: f64| sorted.get(((sorted.len() as f64 - 1.0) * f).round() as usize).copied().unwrap_or(f64::NAN);
     let json = serde_json::json!({
         "photo": [size[0], size[1]],
-        "pan_frames": sorted.len(),
-        "frame_ms_median": q(0.5),
-        "frame_ms_p95": q(0.95),
-        "frame_ms_max": q(1.0),
+        "panning_idle": frame_stats(frame_ms),
+        "panning_idle_cpu_in_egui": frame_stats(cpu_ms),
+        "panning_while_restoring": frame_stats(busy_ms),
         "hint_to_visible_region_ms": partial,
         "visible_region_px": partial_px,
         "hint_to_whole_restoration_ms": full,

@@ -15,12 +15,12 @@ use anyhow::{Context, Result};
 use image::RgbaImage;
 use restage_authoring::compensate::Prepared;
 use restage_authoring::imgio::LinearImage;
-use restage_authoring::restore::{self, Region, Shape};
+use restage_authoring::restore::{self, HintMap, Region, Shape};
 use restage_authoring::stage_model::StageModel;
 use restage_authoring::stage_sim::{self, VirtualStage};
 
-use super::doc::{HintLayer, NO_HINT, Scene, Small, Step, Steps};
-use super::project::{CLASSIFY_DIR, HINTS_FILE, Project, RELIT_FILE, RESTORE_DIR, fallback_colour};
+use super::doc::{HintLayer, Scene, Small, Step, Steps};
+use super::project::{CLASSIFY_DIR, Project, RELIT_FILE, RESTORE_DIR};
 use super::views::ViewKind;
 use crate::Command;
 
@@ -114,42 +114,13 @@ impl Worker {
         std::thread::Builder::new()
             .name("restage-gui-worker".into())
             .spawn(move || {
-                let mut runner = Runner::new(project);
-                let mut send = |m: Msg| {
-                    let _ = tx.send(m);
-                    wake();
-                };
-                runner.load_all_views(&mut send);
-                let mut next: Option<Request> = None;
-                loop {
-                    let req = match next.take() {
-                        Some(r) => r,
-                        None => match rx.recv() {
-                            Ok(r) => r,
-                            Err(_) => return,
-                        },
-                    };
-                    flag.store(false, Ordering::SeqCst);
-                    let mut newer = None;
-                    let stop = || {
-                        flag.load(Ordering::SeqCst) || {
-                            // A newer request supersedes this one between steps.
-                            match rx.try_recv() {
-                                Ok(r) => {
-                                    newer = Some(r);
-                                    true
-                                }
-                                Err(TryRecvError::Empty) => false,
-                                Err(TryRecvError::Disconnected) => true,
-                            }
-                        }
-                    };
-                    let left = runner.run(&req, stop, &mut send);
-                    if let Some(mut n) = newer {
-                        // What this run did not get to is still stale under the newer document.
-                        n.steps = n.steps.union(left);
-                        next = Some(n);
-                    }
+                // One core fewer than the machine has, so the window keeps drawing while a
+                // step runs (results do not depend on the thread count).
+                let threads =
+                    std::thread::available_parallelism().map_or(1, |n| n.get().saturating_sub(1).max(1));
+                match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+                    Ok(pool) => pool.install(move || serve(Runner::new(project), &rx, &tx, &flag, &wake)),
+                    Err(e) => tracing::error!("cannot start the worker's threads: {e}"),
                 }
             })
             .expect("spawning the worker thread");
@@ -163,6 +134,46 @@ impl Worker {
     /// Asks the running request to stop after its current step.
     pub fn cancel(&self) {
         self.cancel.store(true, Ordering::SeqCst);
+    }
+}
+
+/// The worker's loop: first the pictures already on disk, then requests until the window
+/// goes away; a newer request supersedes the running one between steps.
+fn serve(mut runner: Runner, rx: &Receiver<Request>, tx: &Sender<Msg>, flag: &AtomicBool, wake: &dyn Fn()) {
+    let mut send = |m: Msg| {
+        let _ = tx.send(m);
+        wake();
+    };
+    runner.load_all_views(&mut send);
+    let mut next: Option<Request> = None;
+    loop {
+        let req = match next.take() {
+            Some(r) => r,
+            None => match rx.recv() {
+                Ok(r) => r,
+                Err(_) => return,
+            },
+        };
+        flag.store(false, Ordering::SeqCst);
+        let mut newer = None;
+        let stop = || {
+            flag.load(Ordering::SeqCst) || {
+                match rx.try_recv() {
+                    Ok(r) => {
+                        newer = Some(r);
+                        true
+                    }
+                    Err(TryRecvError::Empty) => false,
+                    Err(TryRecvError::Disconnected) => true,
+                }
+            }
+        };
+        let left = runner.run(&req, stop, &mut send);
+        if let Some(mut n) = newer {
+            // What this run did not get to is still stale under the newer document.
+            n.steps = n.steps.union(left);
+            next = Some(n);
+        }
     }
 }
 
@@ -212,8 +223,9 @@ impl Runner {
 
     fn run_step(&mut self, step: Step, req: &Request, send: &mut dyn FnMut(Msg)) -> Result<()> {
         let dir = self.project.dir.clone();
-        if step == Step::Restore {
-            self.write_hints(req)?;
+        if step == Step::Restore && req.steps.contains(Step::Classify) {
+            // The classification just ran: its palette may give the classes new colours.
+            self.project.write_hints(&req.small, &req.hints)?;
         }
         let lines = self.project.commands(step, &req.small, &req.hints, &dir);
         for (i, line) in lines.iter().enumerate() {
@@ -244,19 +256,9 @@ impl Runner {
         Ok(())
     }
 
-    /// The hint strokes PNG, in the display colours the restore step will match against
-    /// (the classification has just run, so its palette is current).
-    fn write_hints(&self, req: &Request) -> Result<()> {
-        let path = self.project.path(HINTS_FILE);
-        if req.hints.labels.iter().all(|&l| l == NO_HINT) {
-            return Ok(());
-        }
-        std::fs::create_dir_all(self.project.path(RESTORE_DIR))?;
-        let colours = self.project.class_colours(&req.small.picks);
-        req.hints.to_rgba(&colours).save(&path).with_context(|| format!("writing {}", path.display()))
-    }
-
-    /// Restores only `rect` (the visible pixels) and sends that part of the picture.
+    /// Restores only `rect` (the visible pixels) and sends that part of the picture. The
+    /// label map is cut to the rectangle plus a margin, so the work is the visible part's,
+    /// and the rectangle is the region (its border anchors contours as in the whole image).
     fn restore_visible_first(
         &self,
         args: &crate::cli::restore::RestoreArgs,
@@ -264,19 +266,30 @@ impl Runner {
         generation: u64,
         send: &mut dyn FnMut(Msg),
     ) -> Result<()> {
+        const MARGIN: u32 = 16;
         let t0 = Instant::now();
         let inputs = crate::cli::restore::load_inputs(args)?;
         let [x, y, width, height] = rect;
-        let region = Region { shape: Shape::Rect { x, y, width, height }, background: args.background };
-        let restored = restore::restore(
-            &inputs.labels,
-            &inputs.info,
-            &[region],
-            inputs.hints.as_ref(),
-            &restore::RestoreParams { grid: (width.div_ceil(256), height.div_ceil(256)), ..inputs.params },
-        )?;
+        let (w, h) = (inputs.labels.width, inputs.labels.height);
+        let (x0, y0) = (x.saturating_sub(MARGIN), y.saturating_sub(MARGIN));
+        let (x1, y1) = ((x + width + MARGIN).min(w), (y + height + MARGIN).min(h));
+        let (cw, ch) = (x1 - x0, y1 - y0);
+        let cut = |data: &[u8]| -> Vec<u8> {
+            (y0..y1)
+                .flat_map(|row| &data[(row * w + x0) as usize..(row * w + x1) as usize])
+                .copied()
+                .collect()
+        };
+        let labels = restore::LabelMap { width: cw, height: ch, data: cut(&inputs.labels.data) };
+        let hints = inputs.hints.as_ref().map(|m| HintMap { width: cw, height: ch, labels: cut(&m.labels) });
+        let region = Region {
+            shape: Shape::Rect { x: x - x0, y: y - y0, width, height },
+            background: args.background,
+        };
+        let params = restore::RestoreParams { grid: (cw.div_ceil(256), ch.div_ceil(256)), ..inputs.params };
+        let restored = restore::restore(&labels, &inputs.info, &[region], hints.as_ref(), &params)?;
         let full = restore::render_labels(&restored.labels, &inputs.colours);
-        let part = image::imageops::crop_imm(&full, x, y, width, height).to_image();
+        let part = image::imageops::crop_imm(&full, x - x0, y - y0, width, height).to_image();
         let image = image::DynamicImage::ImageRgb8(part).to_rgba8();
         send(Msg::Partial { generation, rect, image, seconds: t0.elapsed().as_secs_f64() });
         Ok(())
@@ -336,7 +349,7 @@ impl Runner {
                         let c = if l == restage_authoring::classify::MASKED {
                             [0; 3]
                         } else {
-                            fallback_colour(l as usize)
+                            restage_authoring::color::categorical(l as usize)
                         };
                         px.0 = [c[0], c[1], c[2], 255];
                     }

@@ -192,7 +192,7 @@ impl Project {
                 .colours
                 .iter()
                 .enumerate()
-                .map(|(i, c)| c.display_srgb8.unwrap_or(fallback_colour(i)))
+                .map(|(i, c)| c.display_srgb8.unwrap_or(restage_authoring::color::categorical(i)))
                 .collect(),
         }
     }
@@ -220,21 +220,24 @@ impl Project {
         let lighting = self.path(LIGHTING_FILE);
         std::fs::create_dir_all(lighting.parent().expect("inside the project"))?;
         write_if_changed(&lighting, toml::to_string(&small.lighting)?.as_bytes())?;
-        let hints_path = self.path(HINTS_FILE);
-        if hints.labels.iter().any(|&l| l != NO_HINT) {
-            std::fs::create_dir_all(self.path(RESTORE_DIR))?;
-            let colours = self.class_colours(&small.picks);
-            hints
-                .to_rgba(&colours)
-                .save(&hints_path)
-                .with_context(|| format!("writing {}", hints_path.display()))?;
-        } else if hints_path.exists() {
-            std::fs::remove_file(&hints_path)
-                .with_context(|| format!("removing {}", hints_path.display()))?;
-        }
+        self.write_hints(small, hints)?;
         let script = self.steps_script(small, hints);
         write_if_changed(&self.path(STEPS_SCRIPT), script.as_bytes())?;
         Ok(())
+    }
+
+    /// Writes the hint strokes PNG in the classes' current display colours (what `restore`
+    /// matches strokes against), or removes it when there is no stroke.
+    pub fn write_hints(&self, small: &Small, hints: &HintLayer) -> Result<()> {
+        let path = self.path(HINTS_FILE);
+        if hints.labels.iter().any(|&l| l != NO_HINT) {
+            std::fs::create_dir_all(self.path(RESTORE_DIR))?;
+            save_png_fast(&hints.to_rgba(&self.class_colours(&small.picks)), &path)
+        } else if path.exists() {
+            std::fs::remove_file(&path).with_context(|| format!("removing {}", path.display()))
+        } else {
+            Ok(())
+        }
     }
 
     /// Whether the project can make a step at all (what it lacks, if not).
@@ -691,6 +694,20 @@ fn copy_dir(from: &Path, to: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Writes an RGBA PNG with fast compression (hint strokes are rewritten on every stroke, and
+/// are an input: only their pixels matter).
+pub fn save_png_fast(img: &image::RgbaImage, path: &Path) -> Result<()> {
+    use image::ImageEncoder;
+    let file = std::fs::File::create(path).with_context(|| format!("writing {}", path.display()))?;
+    image::codecs::png::PngEncoder::new_with_quality(
+        std::io::BufWriter::new(file),
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Adaptive,
+    )
+    .write_image(img.as_raw(), img.width(), img.height(), image::ExtendedColorType::Rgba8)
+    .with_context(|| format!("writing {}", path.display()))
+}
+
 /// Single-quotes a word for sh.
 pub fn shell_quote(s: &str) -> String {
     if !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || "-_./=:,@+".contains(c)) {
@@ -698,21 +715,6 @@ pub fn shell_quote(s: &str) -> String {
     } else {
         format!("'{}'", s.replace('\'', "'\\''"))
     }
-}
-
-/// Distinct colours for classes that have no display colour yet.
-pub fn fallback_colour(i: usize) -> [u8; 3] {
-    const C: [[u8; 3]; 8] = [
-        [230, 25, 75],
-        [60, 180, 75],
-        [255, 225, 25],
-        [0, 130, 200],
-        [245, 130, 48],
-        [145, 30, 180],
-        [70, 240, 240],
-        [240, 50, 230],
-    ];
-    C[i % C.len()]
 }
 
 #[cfg(test)]
