@@ -1209,10 +1209,9 @@ impl App {
             && !self.hints_empty
             && let Some(h) = &self.hint_tex
             && h.size == size
+            && let Some((rect, uv)) = visible_quad(area)
         {
-            if let Some((rect, uv)) = visible_quad(area) {
-                painter.image(h.handle.id(), rect, uv, Color32::WHITE);
-            }
+            painter.image(h.handle.id(), rect, uv, Color32::WHITE);
         }
         self.overlays(&painter, area, t);
         if self.shown == Shown::BeforeAfter {
@@ -1586,9 +1585,7 @@ impl App {
                         if full_ms.is_some() || script.started.elapsed() > Duration::from_secs(900) {
                             let r = write_bench(
                                 out,
-                                frame_ms,
-                                cpu_ms,
-                                busy_ms,
+                                [frame_ms, cpu_ms, busy_ms],
                                 *partial_ms,
                                 *full_ms,
                                 *partial_px,
@@ -1653,9 +1650,7 @@ fn frame_stats(v: &[f64]) -> serde_json::Value {
 
 fn write_bench(
     out: &Path,
-    frame_ms: &[f64],
-    cpu_ms: &[f64],
-    busy_ms: &[f64],
+    [frame_ms, cpu_ms, busy_ms]: [&[f64]; 3],
     partial: Option<f64>,
     full: Option<f64>,
     partial_px: u64,
