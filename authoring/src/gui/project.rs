@@ -468,7 +468,7 @@ impl Project {
     /// Makes a new project from a capture folder (copied in as `capture/` unless it is already
     /// inside `dir`) and, optionally, a stage model folder.
     pub fn create_from_capture(dir: &Path, capture: &Path, stage: Option<&Path>) -> Result<Opened> {
-        let manifest = restage_authoring::capture_set::CaptureManifest::load(&capture.join("capture.json"))
+        let manifest = restage_authoring::capture_set::CaptureManifest::load(&capture)
             .with_context(|| format!("{} is not a capture set", capture.display()))?;
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         let dir = std::fs::canonicalize(dir)?;
@@ -621,7 +621,7 @@ impl Project {
 /// A project file for a folder laid out like the demo's output.
 fn from_layout(dir: &Path) -> Result<ProjectFile> {
     let capture = dir.join("capture");
-    let manifest = restage_authoring::capture_set::CaptureManifest::load(&capture.join("capture.json"))
+    let manifest = restage_authoring::capture_set::CaptureManifest::load(&capture)
         .with_context(|| {
             format!(
                 "{} has neither a {PROJECT_FILE} nor a capture set in capture/; make a project with \

@@ -348,3 +348,25 @@ fn export_writes_and_verifies_a_signed_bundle() {
     let err = super::export::write_and_verify(&o.project, &s).unwrap_err();
     assert!(format!("{err:#}").contains("restored"), "{err:#}");
 }
+
+#[test]
+fn a_demo_layout_and_a_capture_folder_open_as_projects() {
+    let (_tmp, o) = copy_of_template();
+    let dir = o.project.dir.clone();
+    // The demo's output has no project.toml: one is made from the layout.
+    std::fs::remove_file(dir.join(super::project::PROJECT_FILE)).unwrap();
+    let o2 = Project::open(&dir).unwrap();
+    assert!(dir.join(super::project::PROJECT_FILE).is_file());
+    assert_eq!(o2.project.paths.stage.as_deref(), Some(Path::new("stage")));
+    assert_eq!(o2.project.paths.photo, Path::new("capture/photo.png"));
+    assert_eq!(o2.small.settings.restore.loss, o.small.settings.restore.loss, "the clay class stays loss");
+    // A capture folder and its stage model, copied into a new project.
+    let tmp = tempfile::tempdir().unwrap();
+    let o3 =
+        Project::create_from_capture(&tmp.path().join("new"), &dir.join("capture"), Some(&dir.join("stage")))
+            .unwrap();
+    assert!(o3.project.has_virtual_stage());
+    assert!(o3.small.picks.colours.is_empty());
+    assert!(o3.project.missing_steps(&o3.small).contains(Step::CompOriginal));
+    assert!(o3.project.path("stage/stage.bin").is_file());
+}
