@@ -468,10 +468,9 @@ impl Project {
     /// Makes a new project from a capture folder (copied in as `capture/` unless it is already
     /// inside `dir`) and, optionally, a stage model folder.
     pub fn create_from_capture(dir: &Path, capture: &Path, stage: Option<&Path>) -> Result<Opened> {
-        let manifest = restage_authoring::capture_set::CaptureManifest::load(&capture)
+        let manifest = restage_authoring::capture_set::CaptureManifest::load(capture)
             .with_context(|| format!("{} is not a capture set", capture.display()))?;
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let dir = std::fs::canonicalize(dir)?;
+        let dir = new_project_dir(dir)?;
         let capture = std::fs::canonicalize(capture)?;
         let rel_capture = match capture.strip_prefix(&dir) {
             Ok(rel) => rel.to_path_buf(),
@@ -518,11 +517,7 @@ impl Project {
         scene: &restage_authoring::stage_sim::SceneConfig,
         acq: &restage_authoring::acquire::AcquireConfig,
     ) -> Result<Opened> {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let dir = std::fs::canonicalize(dir)?;
-        if dir.join(PROJECT_FILE).exists() {
-            bail!("{} already holds a project", dir.display());
-        }
+        let dir = new_project_dir(dir)?;
         let capture = dir.join("capture");
         let manifest = crate::cli::simulate::simulate(scene, acq, &capture)?;
         let truth = capture.join(GROUND_TRUTH_DIR).join("stage");
@@ -564,11 +559,7 @@ impl Project {
         dir: &Path,
         scene: &restage_authoring::stage_sim::SceneConfig,
     ) -> Result<Opened> {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        let dir = std::fs::canonicalize(dir)?;
-        if dir.join(PROJECT_FILE).exists() {
-            bail!("{} already holds a project", dir.display());
-        }
+        let dir = new_project_dir(dir)?;
         let stage = restage_authoring::stage_sim::VirtualStage::new(scene)?;
         let photo = stage.capture(&stage.black_frames(), true, 0)?;
         photo.save_linear16(&dir.join("photo.png"))?;
@@ -600,7 +591,7 @@ impl Project {
     pub fn create_from_photo(dir: &Path, photo: &Path) -> Result<Opened> {
         image::image_dimensions(photo)
             .with_context(|| format!("{} is not a readable image", photo.display()))?;
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        let dir = &new_project_dir(dir)?;
         let name = photo.file_name().context("the photo has no file name")?;
         std::fs::copy(photo, dir.join(name)).with_context(|| format!("copying {}", photo.display()))?;
         let paths = Paths {
@@ -616,6 +607,17 @@ impl Project {
         )?;
         Project::open(dir)
     }
+}
+
+/// The folder of a new project, created if needed; one that already holds a project is
+/// refused rather than written over.
+fn new_project_dir(dir: &Path) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let dir = std::fs::canonicalize(dir)?;
+    if dir.join(PROJECT_FILE).exists() {
+        bail!("{} already holds a project: open it, or choose another folder", dir.display());
+    }
+    Ok(dir)
 }
 
 /// A project file for a folder laid out like the demo's output.
