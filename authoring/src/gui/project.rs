@@ -81,6 +81,9 @@ pub struct Project {
     /// Files that could not be read at opening (kept aside, as `<name>.unreadable`, before
     /// the tool first writes over them).
     pub unreadable: Vec<PathBuf>,
+    /// The hint layer and class colours last written to `restore/hints.png` by this value, so
+    /// a run whose strokes did not change does not encode the PNG again.
+    hints_written: Option<(Vec<u8>, Vec<[u8; 3]>)>,
 }
 
 /// An opened project: the folder, the document read from it, and what was wrong.
@@ -122,7 +125,13 @@ impl Project {
         let photo = dir.join(&file.paths.photo);
         let (w, h) = image::image_dimensions(&photo)
             .with_context(|| format!("the project's photo {} cannot be read", photo.display()))?;
-        let mut project = Project { dir, paths: file.paths, photo_size: (w, h), unreadable: Vec::new() };
+        let mut project = Project {
+            dir,
+            paths: file.paths,
+            photo_size: (w, h),
+            unreadable: Vec::new(),
+            hints_written: None,
+        };
         let mut problems = Vec::new();
         let mut note = |project: &mut Project, path: PathBuf, message: String| {
             project.unreadable.push(path.clone());
@@ -228,12 +237,21 @@ impl Project {
 
     /// Writes the hint strokes PNG in the classes' current display colours (what `restore`
     /// matches strokes against), or removes it when there is no stroke.
-    pub fn write_hints(&self, small: &Small, hints: &HintLayer) -> Result<()> {
+    pub fn write_hints(&mut self, small: &Small, hints: &HintLayer) -> Result<()> {
         let path = self.path(HINTS_FILE);
         if hints.labels.iter().any(|&l| l != NO_HINT) {
+            let colours = self.class_colours(&small.picks);
+            if path.is_file()
+                && self.hints_written.as_ref().is_some_and(|(l, c)| *l == hints.labels && *c == colours)
+            {
+                return Ok(());
+            }
             std::fs::create_dir_all(self.path(RESTORE_DIR))?;
-            save_png_fast(&hints.to_rgba(&self.class_colours(&small.picks)), &path)
+            save_png_fast(&hints.to_rgba(&colours), &path)?;
+            self.hints_written = Some((hints.labels.clone(), colours));
+            Ok(())
         } else if path.exists() {
+            self.hints_written = None;
             std::fs::remove_file(&path).with_context(|| format!("removing {}", path.display()))
         } else {
             Ok(())
@@ -542,8 +560,13 @@ impl Project {
                 .into(),
             mask: Some(mask.strip_prefix(&dir).expect("inside the project").to_path_buf()),
         };
-        let mut project =
-            Project { dir: dir.clone(), paths: paths.clone(), photo_size: (0, 0), unreadable: vec![] };
+        let mut project = Project {
+            dir: dir.clone(),
+            paths: paths.clone(),
+            photo_size: (0, 0),
+            unreadable: vec![],
+            hints_written: None,
+        };
         let (key, trust) = super::export::new_key(&project, "project")?;
         settings.export.key = key;
         settings.export.trust = trust;
