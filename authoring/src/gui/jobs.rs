@@ -103,6 +103,13 @@ pub struct Worker {
     cancel: Arc<AtomicBool>,
 }
 
+/// Lowers the calling thread's priority (its niceness, on Linux) below the window's threads.
+fn background_priority() {
+    if let Err(e) = thread_priority::set_current_thread_priority(thread_priority::ThreadPriority::Min) {
+        tracing::debug!("worker thread keeps its priority: {e:?}");
+    }
+}
+
 impl Worker {
     /// Starts the worker on `project`; it first loads the pictures of every step on disk.
     /// `wake` is called after each message (the window repaints).
@@ -114,11 +121,16 @@ impl Worker {
         std::thread::Builder::new()
             .name("restage-gui-worker".into())
             .spawn(move || {
-                // One core fewer than the machine has, so the window keeps drawing while a
-                // step runs (results do not depend on the thread count).
+                // One core fewer than the machine has, and every worker thread at the lowest
+                // priority, so the window keeps drawing while a step runs (results do not
+                // depend on the thread count).
+                background_priority();
                 let threads =
                     std::thread::available_parallelism().map_or(1, |n| n.get().saturating_sub(1).max(1));
-                match rayon::ThreadPoolBuilder::new().num_threads(threads).build() {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .start_handler(|_| background_priority());
+                match pool.build() {
                     Ok(pool) => pool.install(move || serve(Runner::new(project), &rx, &tx, &flag, &wake)),
                     Err(e) => tracing::error!("cannot start the worker's threads: {e}"),
                 }

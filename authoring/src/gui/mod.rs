@@ -12,6 +12,8 @@ pub mod views;
 
 #[cfg(feature = "gui")]
 mod app;
+#[cfg(feature = "gui")]
+mod gpu;
 
 #[cfg(test)]
 mod tests;
