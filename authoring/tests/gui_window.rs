@@ -1,5 +1,5 @@
 //! `restage-author gui` in a real window: under Xvfb with Mesa's lavapipe (CPU Vulkan) the
-//! tool opens a small virtual-stage project, shows each view, and its screenshots are compared
+//! tool opens the demo's output as a project, shows each view, and its screenshots are compared
 //! with the golden images in `tests/golden/gui/` within a tolerance. `RESTAGE_UPDATE_GOLDEN=1`
 //! rewrites them; every screenshot (and a difference image for a failing one) is kept under
 //! `$CARGO_TARGET_TMPDIR/gui-screenshots/` for a person to look at. Without Xvfb the tests fail
@@ -85,14 +85,15 @@ fn compare(a: &image::RgbImage, b: &image::RgbImage) -> (f64, f64, image::RgbIma
 fn every_view_matches_its_golden_screenshot() {
     let Some(x) = xvfb(0) else { return };
     let tmp = tempfile::tempdir().unwrap();
-    let project = tmp.path().join("project");
-    let st = Command::new(BIN)
-        .args(["gui", project.to_str().unwrap(), "--new-virtual", "vase", "--seed", "1"])
-        .args(["--camera", "320x240", "--projector", "256x192", "--no-window", "--run-missing"])
-        .env("RUST_LOG", "warn")
-        .status()
+    // The demo's whole chain (about two minutes on two cores); its output folder is a project
+    // whose relighting and compensations the tool runs before the screenshots.
+    let project = tmp.path().join("demo");
+    let demo = Command::new(BIN)
+        .args(["demo", "--out", project.to_str().unwrap(), "--device", "cpu"])
+        .env("RUST_LOG", "error")
+        .output()
         .unwrap();
-    assert!(st.success(), "making the project");
+    assert!(demo.status.success(), "running the demo:\n{}", String::from_utf8_lossy(&demo.stderr));
     let shots = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("gui-screenshots");
     let _ = std::fs::remove_dir_all(&shots);
     let out = gui(&x.display)

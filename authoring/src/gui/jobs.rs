@@ -201,8 +201,9 @@ impl Runner {
         Self { project, stage: None, virtual_stage: None }
     }
 
-    /// Runs `req`'s steps in order, checking `stop` between steps. Returns the steps it did
-    /// not finish (empty when everything ran).
+    /// Runs `req`'s steps in order, checking `stop` between steps (and within a restoration,
+    /// between its visible region and the whole). Returns the steps it did not finish (empty
+    /// when everything ran).
     pub fn run(&mut self, req: &Request, mut stop: impl FnMut() -> bool, send: &mut dyn FnMut(Msg)) -> Steps {
         let t0 = Instant::now();
         let g = req.generation;
@@ -221,9 +222,16 @@ impl Runner {
             }
             send(Msg::Progress { generation: g, done, total, step });
             let ts = Instant::now();
-            if let Err(e) = self.run_step(step, req, send) {
-                send(Msg::Failed { generation: g, step: Some(step), message: format!("{e:#}") });
-                return left;
+            match self.run_step(step, req, &mut stop, send) {
+                Ok(true) => {}
+                Ok(false) => {
+                    send(Msg::Cancelled { generation: g });
+                    return left;
+                }
+                Err(e) => {
+                    send(Msg::Failed { generation: g, step: Some(step), message: format!("{e:#}") });
+                    return left;
+                }
             }
             left.remove(step);
             send(Msg::StepDone { generation: g, step, seconds: ts.elapsed().as_secs_f64() });
@@ -233,7 +241,14 @@ impl Runner {
         Steps::NONE
     }
 
-    fn run_step(&mut self, step: Step, req: &Request, send: &mut dyn FnMut(Msg)) -> Result<()> {
+    /// Runs one step's command lines; `Ok(false)` when `stop` said so part way.
+    fn run_step(
+        &mut self,
+        step: Step,
+        req: &Request,
+        stop: &mut dyn FnMut() -> bool,
+        send: &mut dyn FnMut(Msg),
+    ) -> Result<bool> {
         let dir = self.project.dir.clone();
         if step == Step::Restore && req.steps.contains(Step::Classify) {
             // The classification just ran: its palette may give the classes new colours.
@@ -248,6 +263,11 @@ impl Runner {
                 && req.small.settings.restore.regions.is_empty()
             {
                 self.restore_visible_first(args, rect, req.generation, send)?;
+                // The visible part is on screen: a newer stroke (or Cancel) need not wait
+                // for the whole image.
+                if stop() {
+                    return Ok(false);
+                }
             }
             match command {
                 Command::Compensate(args) => {
@@ -265,7 +285,7 @@ impl Runner {
             }
             tracing::debug!("{} line {} done", step.name(), i + 1);
         }
-        Ok(())
+        Ok(true)
     }
 
     /// Restores only `rect` (the visible pixels) and sends that part of the picture. The

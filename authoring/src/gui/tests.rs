@@ -215,6 +215,43 @@ fn cancel_stops_between_steps_and_keeps_what_is_left_stale() {
 }
 
 #[test]
+fn a_newer_request_supersedes_the_whole_restoration_once_its_visible_region_is_shown() {
+    let (_tmp, o) = copy_of_template();
+    let mut doc = Doc::new(o.small.clone(), o.hints.clone());
+    let (w, h) = o.project.photo_size;
+    let mut diff = HintDiff::default();
+    doc.hints.stroke([w as f64 * 0.4, h as f64 * 0.5], [w as f64 * 0.6, h as f64 * 0.5], 3.0, 1, &mut diff);
+    let steps = doc.commit_stroke(diff);
+    let before = std::fs::read(o.project.path("restore/restored.png")).unwrap();
+    let mut runner = Runner::new(o.project.clone());
+    let req = Request {
+        generation: 3,
+        steps,
+        small: doc.small.clone(),
+        hints: Arc::new(doc.hints.clone()),
+        visible: Some([w / 4, h / 4, w / 2, h / 2]),
+    };
+    // Asked before the step (no) and once the visible region is out (yes: a newer stroke).
+    let mut calls = 0;
+    let mut msgs = Vec::new();
+    let left = runner.run(
+        &req,
+        || {
+            calls += 1;
+            calls > 1
+        },
+        &mut |m| msgs.push(m),
+    );
+    assert_eq!(calls, 2);
+    assert!(msgs.iter().any(|m| matches!(m, Msg::Partial { generation: 3, .. })));
+    assert!(done_steps(&msgs).is_empty(), "{msgs:?}");
+    assert!(matches!(msgs.last(), Some(Msg::Cancelled { generation: 3 })));
+    // The whole restoration did not run: still stale, its output untouched.
+    assert_eq!(left, steps);
+    assert_eq!(std::fs::read(o.project.path("restore/restored.png")).unwrap(), before);
+}
+
+#[test]
 fn picks_regions_and_hints_round_trip_through_the_cli_byte_for_byte() {
     let (_tmp, o) = copy_of_template();
     let mut doc = Doc::new(o.small.clone(), o.hints.clone());
