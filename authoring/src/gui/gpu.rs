@@ -63,6 +63,28 @@ fn quad_uniform(quad: Rect, uv: Rect, screen_points: [f32; 2]) -> [f32; 8] {
     [nx(quad.min.x), ny(quad.min.y), nx(quad.max.x), ny(quad.max.y), uv.min.x, uv.min.y, uv.max.x, uv.max.y]
 }
 
+/// A uniform block holding one quad (`quad_uniform`'s layout).
+fn uniform_slot(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    layout: &wgpu::BindGroupLayout,
+    data: &[f32; 8],
+) -> Slot {
+    let buffer = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("restage quad"),
+        size: 32,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    });
+    queue.write_buffer(&buffer, 0, bytemuck::cast_slice(data));
+    let bind = device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("restage quad"),
+        layout,
+        entries: &[wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() }],
+    });
+    Slot { buffer, bind }
+}
+
 /// A picture on the GPU with its mip chain.
 pub struct GpuImage {
     texture: wgpu::Texture,
@@ -94,6 +116,8 @@ pub struct Pictures {
     mip_sampler: wgpu::Sampler,
     slots: Vec<Slot>,
     used: usize,
+    /// The whole-target quad every mip level is drawn with (its scissor limits the work).
+    mip_quad: Slot,
     /// The largest texture side the adapter takes.
     pub max_side: u32,
 }
@@ -191,7 +215,10 @@ impl Pictures {
             min_filter: wgpu::FilterMode::Linear,
             ..Default::default()
         });
+        let whole = Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0));
+        let mip_quad = uniform_slot(&device, &queue, &quad_layout, &quad_uniform(whole, whole, [1.0, 1.0]));
         Self {
+            mip_quad,
             max_side: device.limits().max_texture_dimension_2d,
             device,
             queue,
@@ -269,13 +296,6 @@ impl Pictures {
             wgpu::Extent3d { width: w, height: h, depth_or_array_layers: 1 },
         );
         let mut encoder = self.device.create_command_encoder(&Default::default());
-        // One small uniform buffer for the whole chain: each level draws the full quad (its
-        // scissor limits the work to the rectangle that changed).
-        let quad = self.uniform_slot(&quad_uniform(
-            Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
-            Rect::from_min_max(egui::pos2(0.0, 0.0), egui::pos2(1.0, 1.0)),
-            [1.0, 1.0],
-        ));
         for level in 1..img.level_views.len() as u32 {
             let [sx, sy, sw, sh] = mip_rect(rect, img.size, level);
             if sw == 0 || sh == 0 {
@@ -292,28 +312,12 @@ impl Pictures {
                 ..Default::default()
             });
             pass.set_pipeline(&self.mipmap);
-            pass.set_bind_group(0, &quad.bind, &[]);
+            pass.set_bind_group(0, &self.mip_quad.bind, &[]);
             pass.set_bind_group(1, &img.level_binds[level as usize - 1], &[]);
             pass.set_scissor_rect(sx, sy, sw, sh);
             pass.draw(0..6, 0..1);
         }
         self.queue.submit([encoder.finish()]);
-    }
-
-    fn uniform_slot(&self, data: &[f32; 8]) -> Slot {
-        let buffer = self.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("restage quad"),
-            size: 32,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        self.queue.write_buffer(&buffer, 0, bytemuck::cast_slice(data));
-        let bind = self.device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("restage quad"),
-            layout: &self.quad_layout,
-            entries: &[wgpu::BindGroupEntry { binding: 0, resource: buffer.as_entire_binding() }],
-        });
-        Slot { buffer, bind }
     }
 
     /// Starts a frame: the uniform blocks of the previous frame's draws are free again.
@@ -333,7 +337,7 @@ impl Pictures {
         blend: bool,
     ) {
         if self.used == self.slots.len() {
-            let slot = self.uniform_slot(&[0.0; 8]);
+            let slot = uniform_slot(&self.device, &self.queue, &self.quad_layout, &[0.0; 8]);
             self.slots.push(slot);
         }
         let slot = &self.slots[self.used];

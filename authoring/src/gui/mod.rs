@@ -69,8 +69,9 @@ pub struct GuiArgs {
     /// Scripted session: show every view, save a screenshot of each into DIR, and exit.
     #[arg(long, value_name = "DIR")]
     pub screenshots: Option<PathBuf>,
-    /// Scripted benchmark: pan the photo for a while, paint one hint stroke, and write the
-    /// frame times and the stroke-to-picture latency to this JSON file, then exit.
+    /// Scripted benchmark: pan the photo, paint a hint stroke while panning and one with the
+    /// view still, lower E_bound when there is a stage model, and write the frame times and
+    /// the stroke-to-picture latencies to this JSON file, then exit.
     #[arg(long, value_name = "JSON")]
     pub bench: Option<PathBuf>,
     /// Window size in points.

@@ -61,18 +61,38 @@ fn copy(from: &Path, to: &Path) {
     }
 }
 
+fn request(doc: &Doc, generation: u64, steps: Steps, visible: Option<[u32; 4]>) -> Request {
+    Request { generation, steps, small: doc.small.clone(), hints: Arc::new(doc.hints.clone()), visible }
+}
+
 fn run_doc(project: &Project, doc: &Doc, steps: Steps, visible: Option<[u32; 4]>) -> (Vec<Msg>, Steps) {
-    let mut runner = Runner::new(project.clone());
-    let req = Request {
-        generation: 1,
-        steps,
-        small: doc.small.clone(),
-        hints: Arc::new(doc.hints.clone()),
-        visible,
-    };
     let mut msgs = Vec::new();
-    let left = runner.run(&req, || false, &mut |m| msgs.push(m));
+    let left =
+        Runner::new(project.clone()).run(&request(doc, 1, steps, visible), || false, &mut |m| msgs.push(m));
     (msgs, left)
+}
+
+/// Runs `req` with a `stop` that says no at its first call and yes from its second on (a
+/// newer request or Cancel arriving after the first check); also returns how often it was asked.
+fn run_stopped_at_second_check(project: &Project, req: &Request) -> (Vec<Msg>, Steps, usize) {
+    let mut calls = 0;
+    let mut msgs = Vec::new();
+    let left = Runner::new(project.clone()).run(
+        req,
+        || {
+            calls += 1;
+            calls > 1
+        },
+        &mut |m| msgs.push(m),
+    );
+    (msgs, left, calls)
+}
+
+/// Class 1 painted across the middle of the object; the steps it makes stale.
+fn stroke_across_the_middle(doc: &mut Doc, (w, h): (u32, u32)) -> Steps {
+    let mut diff = HintDiff::default();
+    doc.hints.stroke([w as f64 * 0.4, h as f64 * 0.5], [w as f64 * 0.6, h as f64 * 0.5], 3.0, 1, &mut diff);
+    doc.commit_stroke(diff)
 }
 
 fn run(o: &Opened, steps: Steps, visible: Option<[u32; 4]>) -> (Vec<Msg>, Steps) {
@@ -150,10 +170,7 @@ fn a_hint_stroke_restores_the_visible_region_first() {
     let (_tmp, o) = copy_of_template();
     let mut doc = Doc::new(o.small.clone(), o.hints.clone());
     let (w, h) = o.project.photo_size;
-    // Paint class 1 across the middle of the object.
-    let mut diff = HintDiff::default();
-    doc.hints.stroke([w as f64 * 0.4, h as f64 * 0.5], [w as f64 * 0.6, h as f64 * 0.5], 3.0, 1, &mut diff);
-    let stale = doc.commit_stroke(diff);
+    let stale = stroke_across_the_middle(&mut doc, (w, h));
     assert!(
         stale.contains(Step::Restore)
             && !stale.contains(Step::Classify)
@@ -190,25 +207,8 @@ fn a_hint_stroke_restores_the_visible_region_first() {
 fn cancel_stops_between_steps_and_keeps_what_is_left_stale() {
     let (_tmp, o) = copy_of_template();
     let doc = Doc::new(o.small.clone(), o.hints.clone());
-    let mut runner = Runner::new(o.project.clone());
     let steps = Steps::from_iter([Step::Restore]).with_dependents();
-    let req = Request {
-        generation: 7,
-        steps,
-        small: doc.small.clone(),
-        hints: Arc::new(doc.hints.clone()),
-        visible: None,
-    };
-    let mut calls = 0;
-    let mut msgs = Vec::new();
-    let left = runner.run(
-        &req,
-        || {
-            calls += 1;
-            calls > 1
-        },
-        &mut |m| msgs.push(m),
-    );
+    let (msgs, left, _) = run_stopped_at_second_check(&o.project, &request(&doc, 7, steps, None));
     assert_eq!(done_steps(&msgs), vec![Step::Restore]);
     assert!(matches!(msgs.last(), Some(Msg::Cancelled { generation: 7 })));
     assert_eq!(left, Steps::from_iter([Step::Relight, Step::CompRestored, Step::CompRelit]));
@@ -219,29 +219,11 @@ fn a_newer_request_supersedes_the_whole_restoration_once_its_visible_region_is_s
     let (_tmp, o) = copy_of_template();
     let mut doc = Doc::new(o.small.clone(), o.hints.clone());
     let (w, h) = o.project.photo_size;
-    let mut diff = HintDiff::default();
-    doc.hints.stroke([w as f64 * 0.4, h as f64 * 0.5], [w as f64 * 0.6, h as f64 * 0.5], 3.0, 1, &mut diff);
-    let steps = doc.commit_stroke(diff);
+    let steps = stroke_across_the_middle(&mut doc, (w, h));
     let before = std::fs::read(o.project.path("restore/restored.png")).unwrap();
-    let mut runner = Runner::new(o.project.clone());
-    let req = Request {
-        generation: 3,
-        steps,
-        small: doc.small.clone(),
-        hints: Arc::new(doc.hints.clone()),
-        visible: Some([w / 4, h / 4, w / 2, h / 2]),
-    };
     // Asked before the step (no) and once the visible region is out (yes: a newer stroke).
-    let mut calls = 0;
-    let mut msgs = Vec::new();
-    let left = runner.run(
-        &req,
-        || {
-            calls += 1;
-            calls > 1
-        },
-        &mut |m| msgs.push(m),
-    );
+    let req = request(&doc, 3, steps, Some([w / 4, h / 4, w / 2, h / 2]));
+    let (msgs, left, calls) = run_stopped_at_second_check(&o.project, &req);
     assert_eq!(calls, 2);
     assert!(msgs.iter().any(|m| matches!(m, Msg::Partial { generation: 3, .. })));
     assert!(done_steps(&msgs).is_empty(), "{msgs:?}");
