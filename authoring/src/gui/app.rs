@@ -227,8 +227,6 @@ struct App {
     class: usize,
     brush: f32,
     show_hints: bool,
-    /// No stroke anywhere: the overlay is not drawn at all.
-    hints_empty: bool,
     stroke: Option<(HintDiff, [f64; 2])>,
     drag_from: Option<[f32; 2]>,
     polygon: Vec<[f64; 2]>,
@@ -282,7 +280,6 @@ impl App {
             class: 0,
             brush: 4.0,
             show_hints: true,
-            hints_empty: true,
             stroke: None,
             drag_from: None,
             polygon: Vec::new(),
@@ -384,12 +381,6 @@ impl App {
 
     /// Re-uploads the hint overlay (all of it, or the pixels `rect`).
     fn refresh_hint_texture(&mut self, rect: Option<[u32; 4]>) {
-        self.hints_empty = match rect {
-            None => self.doc.hints.is_empty(),
-            // A partial update only ever follows painting or erasing: check the whole layer
-            // only when erasing could have emptied it.
-            Some(_) => self.hints_empty && self.doc.hints.is_empty(),
-        };
         let colours = self.class_colours();
         let h = &self.doc.hints;
         let [x, y, w, hh] = rect.unwrap_or([0, 0, h.width, h.height]);
@@ -1280,12 +1271,11 @@ impl App {
             }
         }
         if self.show_hints
-            && !self.hints_empty
             && let Some(o) = &self.hint_tex
             && o.tiles.size() == size
             && let Some(vis) = t.visible(size, self.view_size)
         {
-            // Only the tiles holding strokes (uv 0..1 spans the picture's pixel edges).
+            // Only the tiles holding strokes, none without any (uv 0..1 spans the pixel edges).
             let (iw, ih) = (img_rect.width() / size[0] as f32, img_rect.height() / size[1] as f32);
             for [x0, y0, x1, y1] in o.tiles.runs(vis) {
                 let rect = Rect::from_min_max(
