@@ -107,9 +107,11 @@ impl Stage {
         read_log(&self.path("rec")).unwrap_or_default()
     }
 
-    /// Marks "dark from now" in the recorder log (after the test killed the process).
+    /// Marks "dark from now" in the recorder log (after the test killed the process). A kill
+    /// that came before the recorder wrote its first line leaves no log yet: create it.
     pub fn mark_dark(&self, unix_us: u128) {
-        let mut f = std::fs::OpenOptions::new().append(true).open(self.path("rec/log.tsv")).unwrap();
+        let mut f =
+            std::fs::OpenOptions::new().create(true).append(true).open(self.path("rec/log.tsv")).unwrap();
         f.write_all(format!("{unix_us}\tblank\n").as_bytes()).unwrap();
     }
 
