@@ -28,6 +28,12 @@ pub struct Config {
     /// The bundle to play. Default: `STATE_DIR/active.bundle`, where `install` puts it.
     #[serde(default)]
     pub bundle: Option<PathBuf>,
+    /// The object on this stage (the bundle manifest's object id). Budgets are kept per
+    /// object, so a bundle signed for another id is refused: re-signing the same content
+    /// under a new id cannot open a fresh budget. Unset: the stage is pinned to the object
+    /// of the first bundle it accepts (recorded in the ledger); set it to move to another.
+    #[serde(default)]
+    pub object_id: Option<String>,
     #[serde(default)]
     pub player: PlayerConfig,
     #[serde(default)]
@@ -85,10 +91,20 @@ impl Default for PlayerConfig {
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct LedgerConfig {
-    /// Length of one exposure reservation in ms (100..=60000). Default 5000.
+    /// Length of one exposure reservation in ms (2500..=600000). Default 30000. After a
+    /// crash or power cut the whole reservation stands (an over-count of at most this).
     pub reserve_ms: u64,
-    /// Renew a reservation this many ms before it runs out (10..reserve_ms). Default 1000.
+    /// Renew a reservation this many ms before it runs out (2000..=reserve_ms - 500). Default
+    /// 15000. This is the slack that covers a stalled process until the watchdog kills it:
+    /// systemd's `WatchdogSec` must be at most `renew_ahead_ms - KILL_TO_DARK_MS`
+    /// (checked at start).
     pub renew_ahead_ms: u64,
+    /// From a blank command to no light at the object, ms (0..=2000): the display pipeline
+    /// and the projector's own latency. Commits pay until `now + this`. Default 100.
+    pub light_off_latency_ms: u64,
+    /// Longest wait for another process's lock on the ledger, ms (10..=1000). Light never
+    /// waits longer: a lock held past it is a ledger fault (dark, retried). Default 100.
+    pub busy_timeout_ms: u64,
     /// Offset of local time from UTC in minutes (-840..=840); days of the daily budget begin
     /// at local midnight. Default 0.
     pub utc_offset_minutes: i32,
@@ -96,7 +112,27 @@ pub struct LedgerConfig {
 
 impl Default for LedgerConfig {
     fn default() -> Self {
-        Self { reserve_ms: 5000, renew_ahead_ms: 1000, utc_offset_minutes: 0 }
+        Self {
+            reserve_ms: 30_000,
+            renew_ahead_ms: 15_000,
+            light_off_latency_ms: 100,
+            busy_timeout_ms: 100,
+            utc_offset_minutes: 0,
+        }
+    }
+}
+
+/// Allowance from a watchdog kill (or any process death) to dark projectors: signal
+/// delivery, the kernel releasing DRM master and restoring its (blank) console, the
+/// projector's latency. The watchdog timeout plus this must fit in `renew_ahead_ms`.
+pub const KILL_TO_DARK_MS: u64 = 2_000;
+
+impl LedgerConfig {
+    /// The longest watchdog timeout (systemd's `WatchdogSec`) this configuration can cover:
+    /// a process stopped right after renewing is killed, and its light gone, before its
+    /// reservation runs out.
+    pub fn max_watchdog_ms(&self) -> u64 {
+        self.renew_ahead_ms.saturating_sub(KILL_TO_DARK_MS)
     }
 }
 
@@ -246,15 +282,26 @@ impl Config {
             return Err(range("player.max_showing_ms", "0".into(), "at least 1"));
         }
         let l = &self.ledger;
-        if !(100..=60_000).contains(&l.reserve_ms) {
-            return Err(range("ledger.reserve_ms", l.reserve_ms.to_string(), "100..=60000"));
+        if !(2_500..=600_000).contains(&l.reserve_ms) {
+            return Err(range("ledger.reserve_ms", l.reserve_ms.to_string(), "2500..=600000"));
         }
-        if l.renew_ahead_ms < 10 || l.renew_ahead_ms >= l.reserve_ms {
+        if l.renew_ahead_ms < 2_000 || l.renew_ahead_ms + 500 > l.reserve_ms {
             return Err(range(
                 "ledger.renew_ahead_ms",
                 l.renew_ahead_ms.to_string(),
-                "10..ledger.reserve_ms",
+                "2000..=ledger.reserve_ms - 500",
             ));
+        }
+        if l.light_off_latency_ms > 2_000 {
+            return Err(range("ledger.light_off_latency_ms", l.light_off_latency_ms.to_string(), "0..=2000"));
+        }
+        if !(10..=1_000).contains(&l.busy_timeout_ms) {
+            return Err(range("ledger.busy_timeout_ms", l.busy_timeout_ms.to_string(), "10..=1000"));
+        }
+        if let Some(o) = &self.object_id
+            && (o.is_empty() || o.len() > 200 || o.chars().any(char::is_control))
+        {
+            return Err(range("object_id", format!("{o:?}"), "1..=200 printable characters"));
         }
         if !(-840..=840).contains(&l.utc_offset_minutes) {
             return Err(range("ledger.utc_offset_minutes", l.utc_offset_minutes.to_string(), "-840..=840"));
@@ -297,10 +344,7 @@ impl Config {
     }
 }
 
-/// File name of the active bundle inside the state directory.
-pub const ACTIVE_BUNDLE: &str = "active.bundle";
-/// File name of the ledger inside the state directory.
-pub const LEDGER_FILE: &str = "ledger.sqlite";
+pub use crate::ledger::{ACTIVE_BUNDLE_FILE as ACTIVE_BUNDLE, LEDGER_FILE};
 
 #[cfg(test)]
 mod tests {
@@ -333,9 +377,26 @@ mod tests {
 
     #[test]
     fn renew_ahead_must_be_below_reserve() {
-        let text = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[ledger]\nreserve_ms = 500\nrenew_ahead_ms = 500\n\
+        let text = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[ledger]\nreserve_ms = 5000\nrenew_ahead_ms = 4800\n\
                     [output]\nkind = \"headless\"\ndir = \"/r\"\n";
         let e = Config::parse(text, Path::new("c.toml")).unwrap_err().to_string();
         assert!(e.contains("ledger.renew_ahead_ms"), "{e}");
+        // Short leases renewed late under load were how light went unpaid: refused.
+        let text = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[ledger]\nreserve_ms = 200\nrenew_ahead_ms = 100\n\
+                    [output]\nkind = \"headless\"\ndir = \"/r\"\n";
+        let e = Config::parse(text, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("ledger.reserve_ms"), "{e}");
+    }
+
+    #[test]
+    fn the_documented_watchdog_fits_the_default_lease_slack() {
+        let c = Config::parse(EXAMPLE, Path::new("example.toml")).unwrap();
+        let unit = include_str!("../../systemd/restage-appliance.service");
+        let secs: u64 = unit
+            .lines()
+            .find_map(|l| l.strip_prefix("WatchdogSec="))
+            .and_then(|v| v.trim().trim_end_matches('s').parse().ok())
+            .expect("the unit sets WatchdogSec in seconds");
+        assert!(secs * 1000 <= c.ledger.max_watchdog_ms(), "WatchdogSec={secs}s, {:?}", c.ledger);
     }
 }

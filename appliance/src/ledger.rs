@@ -3,8 +3,15 @@
 //! Exposure is reserve-then-commit: a row `[start, end]` at a lux level is written before the
 //! light goes on, extended before it runs out, and shrunk to the actual end once the light is
 //! off. After a crash the reservation stands, so exposure is over-counted, never under-counted.
-//! It also holds the highest accepted bundle version per object (anti-rollback), the showings,
-//! budget warnings and notable events, for `status`.
+//! It also holds the highest accepted bundle version per object (anti-rollback), the object
+//! this stage is pinned to, the showings, budget warnings, notable events and one row per run
+//! (its clock anchor), for `status` and audits.
+//!
+//! The invariant (ARCHITECTURE.md, "Light accounting"): for every interval in which any
+//! projector emits light, the ledger holds at least that interval's lux·h. A commit records
+//! the actual end, even past the reservation (a stalled process); times are ledger time
+//! (`clock`), which no wall-clock step moves; a missing or emptied ledger on a stage that has
+//! played is refused until an operator acknowledges it (`open_stage`, `reset_acknowledged`).
 
 use std::path::{Path, PathBuf};
 
@@ -70,6 +77,18 @@ const MIGRATIONS: &[&str] = &[
         kind TEXT NOT NULL,
         detail TEXT NOT NULL
     );",
+    // 2: key/value facts (ledger id, pinned object) and one row per run (its clock anchor).
+    "CREATE TABLE meta (
+        key TEXT PRIMARY KEY,
+        value TEXT NOT NULL
+    );
+    CREATE TABLE run (
+        id INTEGER PRIMARY KEY,
+        ledger_ms INTEGER NOT NULL,
+        boot_ms INTEGER NOT NULL,
+        wall_ms INTEGER NOT NULL,
+        pid INTEGER NOT NULL
+    );",
 ];
 
 /// The schema version this program writes.
@@ -79,6 +98,14 @@ const MS_PER_DAY: i64 = 86_400_000;
 const MS_PER_HOUR: f64 = 3_600_000.0;
 /// The annual budget is over any 365 days (rolling), so no new-year reset lets light surge.
 const YEAR_MS: i64 = 365 * MS_PER_DAY;
+/// How long a write waits for another process's lock (tools; the player sets its own, short).
+const TOOL_BUSY_MS: u64 = 5_000;
+/// The file beside the ledger naming the ledger id this stage writes to.
+pub const GUARD_FILE: &str = "ledger.id";
+/// The ledger file in the state directory.
+pub const LEDGER_FILE: &str = "ledger.sqlite";
+/// The active bundle in the state directory (where `install` puts it).
+pub const ACTIVE_BUNDLE_FILE: &str = "active.bundle";
 
 #[derive(Debug, Error)]
 pub enum LedgerError {
@@ -96,6 +123,19 @@ pub enum LedgerError {
         "bundle for object {object}: version {version} was accepted with a different content ({accepted_hash})"
     )]
     SameVersionDifferentContent { object: String, version: u64, accepted_hash: String },
+    #[error(
+        "ledger {path} is missing or empty, but this stage has played before ({evidence}): its light \
+         history and anti-rollback record would be lost, so no light until an operator runs \
+         `restage-appliance ledger-reset --config FILE --reason \"...\"`"
+    )]
+    Missing { path: PathBuf, evidence: String },
+    #[error(
+        "ledger {path} has id {found}, but {guard} names {expected}: the ledger was replaced; \
+         no light until an operator runs `restage-appliance ledger-reset --config FILE --reason \"...\"`"
+    )]
+    Replaced { path: PathBuf, guard: PathBuf, expected: String, found: String },
+    #[error("ledger guard {path}: {source}")]
+    Guard { path: PathBuf, source: std::io::Error },
 }
 
 /// The budgets the ledger enforces (from the active bundle's policy).
@@ -184,10 +224,171 @@ pub struct Ledger {
 
 impl Ledger {
     /// Opens (creating if needed) the ledger at `path` and brings its schema up to date.
+    /// Tools and tests; the stage opens its ledger with [`Ledger::open_stage`].
     pub fn open(path: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
         let conn =
             Connection::open(path).map_err(|source| LedgerError::Open { path: path.into(), source })?;
         Self::setup(conn, path, utc_offset_minutes, true)
+    }
+
+    /// Opens the stage's ledger in `state_dir`, refusing to start a fresh one where the stage
+    /// has kept one before: the guard file (`ledger.id`, written durably when the ledger was
+    /// first opened here) names the ledger, so a ledger deleted, truncated or swapped for
+    /// another (a restored backup) is refused rather than silently replaced. A first start
+    /// creates both. (Deleting the guard too is an operator's act outside the appliance.)
+    pub fn open_stage(state_dir: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+        let path = state_dir.join(LEDGER_FILE);
+        let guard = state_dir.join(GUARD_FILE);
+        let has_ledger = std::fs::metadata(&path).is_ok_and(|m| m.len() > 0);
+        let guard_id = read_guard(&guard)?;
+        if let (false, Some(id)) = (has_ledger, &guard_id) {
+            return Err(LedgerError::Missing {
+                path,
+                evidence: format!("{} names ledger {id}", guard.display()),
+            });
+        }
+        let ledger = Self::open(&path, utc_offset_minutes)?;
+        let id = ledger.ledger_id()?;
+        match guard_id {
+            Some(expected) if expected != id => {
+                Err(LedgerError::Replaced { path, guard, expected, found: id })
+            }
+            Some(_) => Ok(ledger),
+            None => {
+                write_guard(&guard, &id)?;
+                Ok(ledger)
+            }
+        }
+    }
+
+    /// An operator's acknowledgement that the stage's ledger is lost or replaced: whatever
+    /// ledger file is there is kept aside (renamed, never deleted), a fresh ledger is created
+    /// with the acknowledgement as its first event, and the guard names it. Returns the
+    /// ledger and where the old file went.
+    pub fn reset_acknowledged(
+        state_dir: &Path,
+        utc_offset_minutes: i32,
+        reason: &str,
+        now_ms: i64,
+    ) -> Result<(Ledger, Vec<PathBuf>), LedgerError> {
+        let path = state_dir.join(LEDGER_FILE);
+        let guard = state_dir.join(GUARD_FILE);
+        let old_id = read_guard(&guard)?;
+        let mut kept = Vec::new();
+        for suffix in ["", "-wal", "-shm"] {
+            let from = state_dir.join(format!("{LEDGER_FILE}{suffix}"));
+            if from.exists() {
+                let to = state_dir.join(format!("{LEDGER_FILE}.replaced-{now_ms}{suffix}"));
+                std::fs::rename(&from, &to).map_err(|source| LedgerError::Guard { path: from, source })?;
+                kept.push(to);
+            }
+        }
+        let mut ledger = Self::open(&path, utc_offset_minutes)?;
+        let id = ledger.ledger_id()?;
+        let detail = format!(
+            "ledger reset acknowledged by an operator: {reason}; previous ledger {}; old files kept: {}",
+            old_id.as_deref().unwrap_or("unknown"),
+            if kept.is_empty() {
+                "none".to_string()
+            } else {
+                kept.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", ")
+            }
+        );
+        ledger.log_event(now_ms, "ledger-reset", &detail)?;
+        write_guard(&guard, &id)?;
+        Ok((ledger, kept))
+    }
+
+    /// Waits at most `ms` for another process's write lock (the player keeps this short: a
+    /// lock holder must never keep light on unpaid or hold up a blank).
+    pub fn set_busy_timeout(&self, ms: u64) -> Result<(), LedgerError> {
+        self.conn.busy_timeout(std::time::Duration::from_millis(ms)).map_err(self.sql())
+    }
+
+    /// This ledger's id (made when it was created).
+    pub fn ledger_id(&self) -> Result<String, LedgerError> {
+        if let Some(id) = self.meta("ledger_id")? {
+            return Ok(id);
+        }
+        let seed = format!(
+            "{:?} {} {} {}",
+            std::time::SystemTime::now(),
+            std::process::id(),
+            crate::clock::boot_us(),
+            self.path.display()
+        );
+        let id = blake3::hash(seed.as_bytes()).to_hex()[..32].to_string();
+        self.conn
+            .execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('ledger_id', ?1)", [&id])
+            .map_err(self.sql())?;
+        self.meta("ledger_id")?.ok_or_else(|| LedgerError::Corrupt {
+            path: self.path.clone(),
+            detail: "ledger id not stored".into(),
+        })
+    }
+
+    fn meta(&self, key: &str) -> Result<Option<String>, LedgerError> {
+        self.conn
+            .query_row("SELECT value FROM meta WHERE key = ?1", [key], |r| r.get(0))
+            .optional()
+            .map_err(self.sql())
+    }
+
+    /// The object this stage's budgets are pinned to (the first accepted, or the configured).
+    pub fn pinned_object(&self) -> Result<Option<String>, LedgerError> {
+        self.meta("pinned_object")
+    }
+
+    /// Pins the stage to `object` (recorded as an event when it changes).
+    pub fn pin_object(&mut self, object: &str, now_ms: i64, why: &str) -> Result<(), LedgerError> {
+        let old = self.pinned_object()?;
+        if old.as_deref() == Some(object) {
+            return Ok(());
+        }
+        self.conn
+            .execute(
+                "INSERT INTO meta (key, value) VALUES ('pinned_object', ?1)
+                 ON CONFLICT (key) DO UPDATE SET value = ?1",
+                [object],
+            )
+            .map_err(self.sql())?;
+        let detail = format!("object pinned to {object} (was {}): {why}", old.as_deref().unwrap_or("none"));
+        self.log_event(now_ms, "object-pin", &detail)
+    }
+
+    /// The latest ledger time this ledger has seen (runs, reservations, events, showings):
+    /// ledger time never restarts below it.
+    pub fn high_water_ms(&self) -> Result<i64, LedgerError> {
+        self.conn
+            .query_row(
+                "SELECT MAX(COALESCE((SELECT MAX(ledger_ms) FROM run), 0),
+                            COALESCE((SELECT MAX(start_ms) FROM exposure), 0),
+                            COALESCE((SELECT MAX(at_ms) FROM event), 0),
+                            COALESCE((SELECT MAX(ended_ms) FROM showing), 0))",
+                [],
+                |r| r.get(0),
+            )
+            .map_err(self.sql())
+    }
+
+    /// Records a run's start and its clock anchor (ledger time `ledger_ms` was boot-clock
+    /// `boot_ms`; the wall clock read `wall_ms`).
+    pub fn record_run(&mut self, ledger_ms: i64, boot_ms: u64, wall_ms: i64) -> Result<(), LedgerError> {
+        self.conn
+            .execute(
+                "INSERT INTO run (ledger_ms, boot_ms, wall_ms, pid) VALUES (?1, ?2, ?3, ?4)",
+                params![ledger_ms, boot_ms as i64, wall_ms, std::process::id()],
+            )
+            .map_err(self.sql())?;
+        Ok(())
+    }
+
+    /// Every run's clock anchor `(ledger_ms, boot_ms)`, oldest first (audits, tests).
+    pub fn runs(&self) -> Result<Vec<(i64, u64)>, LedgerError> {
+        self.conn
+            .prepare("SELECT ledger_ms, boot_ms FROM run ORDER BY id")
+            .and_then(|mut s| s.query_map([], |r| Ok((r.get(0)?, r.get::<_, i64>(1)? as u64)))?.collect())
+            .map_err(self.sql())
     }
 
     /// Opens an existing ledger read-only (for `status` while the appliance runs).
@@ -212,7 +413,7 @@ impl Ledger {
         write: bool,
     ) -> Result<Ledger, LedgerError> {
         let sql = |source| LedgerError::Sql { path: path.into(), source };
-        conn.busy_timeout(std::time::Duration::from_secs(5)).map_err(sql)?;
+        conn.busy_timeout(std::time::Duration::from_millis(TOOL_BUSY_MS)).map_err(sql)?;
         if write {
             // WAL: readers (status) never block the player; FULL: a committed reservation
             // survives a power cut.
@@ -626,11 +827,12 @@ impl Accountant for Ledger {
     }
 
     fn commit(&mut self, lease: LeaseId, end: i64) -> Result<(), Refusal> {
-        // Only ever shrinks to the actual end, never below the start: the light was on until
-        // `end`, and the reservation already covers it.
+        // The actual end, also past the reservation's: a process stalled while lit (stopped,
+        // starved) kept the light on beyond what it had reserved, and that light was paid
+        // for by nobody else. Never below the start.
         self.conn
             .execute(
-                "UPDATE exposure SET end_ms = MAX(start_ms, MIN(end_ms, ?2)), committed = 1 WHERE id = ?1",
+                "UPDATE exposure SET end_ms = MAX(start_ms, ?2), committed = 1 WHERE id = ?1",
                 params![lease, end],
             )
             .map_err(|e| Refusal::Failed(format!("{}: {e}", self.path.display())))?;
@@ -653,6 +855,43 @@ impl Accountant for Ledger {
             .map_err(|e| Refusal::Failed(format!("{}: {e}", self.path.display())))?;
         Ok(())
     }
+
+    fn last_showing_end(&self) -> Option<i64> {
+        let object = self.active.as_ref().map(|(o, _)| o.clone())?;
+        self.conn
+            .query_row(
+                "SELECT MAX(end_ms) FROM exposure WHERE object = ?1 AND kind IN ('showing', 'fade')",
+                [object],
+                |r| r.get::<_, Option<i64>>(0),
+            )
+            .map_err(|e| tracing::warn!(%e, "could not read the last showing's end"))
+            .ok()
+            .flatten()
+    }
+}
+
+/// The ledger id a guard file names, if there is one.
+fn read_guard(guard: &Path) -> Result<Option<String>, LedgerError> {
+    match std::fs::read_to_string(guard) {
+        Ok(s) => Ok(Some(s.trim().to_string())),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(source) => Err(LedgerError::Guard { path: guard.into(), source }),
+    }
+}
+
+/// Writes the guard durably (temporary file, fsync, rename, fsync of the directory).
+fn write_guard(guard: &Path, id: &str) -> Result<(), LedgerError> {
+    let err = |source| LedgerError::Guard { path: guard.into(), source };
+    let dir = guard.parent().unwrap_or(Path::new("."));
+    let tmp = dir.join(format!(".{GUARD_FILE}.tmp"));
+    let write = || -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        std::io::Write::write_all(&mut f, format!("{id}\n").as_bytes())?;
+        f.sync_all()?;
+        std::fs::rename(&tmp, guard)?;
+        std::fs::File::open(dir)?.sync_all()
+    };
+    write().map_err(err)
 }
 
 /// (year, month, day) of a day count since 1970-01-01 (H. Hinnant's civil_from_days).
@@ -701,11 +940,91 @@ mod tests {
         assert!((l.total("vase").unwrap() - 100.0).abs() < 1e-9);
         l.commit(id, H / 2).unwrap();
         assert!((l.total("vase").unwrap() - 50.0).abs() < 1e-9);
-        // A commit never grows a reservation, nor goes below its start.
-        l.commit(id, 10 * H).unwrap();
-        assert!((l.total("vase").unwrap() - 50.0).abs() < 1e-9);
+        // A commit never goes below the start.
+        l.commit(id, -H).unwrap();
+        assert!(l.total("vase").unwrap().abs() < 1e-9);
         l.extend(id, H).unwrap();
         assert!((l.total("vase").unwrap() - 100.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn commit_records_the_actual_end_past_the_reservation() {
+        // A process stalled while lit: its light outlasted the reservation. The commit pays
+        // for all of it (a clamp to the reservation was how stalled light went unpaid).
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        l.set_active(&active(1000.0, 10_000.0)).unwrap();
+        let id = l.reserve(LightKind::Showing, "r1", 100.0, 0, H).unwrap();
+        l.commit(id, 3 * H).unwrap();
+        assert!((l.total("vase").unwrap() - 300.0).abs() < 1e-9, "{}", l.total("vase").unwrap());
+        assert_eq!(l.last_showing_end(), Some(3 * H));
+    }
+
+    #[test]
+    fn a_lost_or_replaced_ledger_is_refused_until_acknowledged() {
+        let dir = tempfile::tempdir().unwrap();
+        let state = dir.path();
+        let ledger_path = state.join(LEDGER_FILE);
+        // First start: ledger and guard created.
+        let first_id = {
+            let mut l = Ledger::open_stage(state, 0).unwrap();
+            l.set_active(&active(1000.0, 10_000.0)).unwrap();
+            l.accept_version("vase", 7, "h7", 0).unwrap();
+            l.ledger_id().unwrap()
+        };
+        assert_eq!(std::fs::read_to_string(state.join(GUARD_FILE)).unwrap().trim(), first_id);
+        Ledger::open_stage(state, 0).unwrap();
+        // Truncated to nothing.
+        let good = std::fs::read(&ledger_path).unwrap();
+        std::fs::write(&ledger_path, b"").unwrap();
+        let e = Ledger::open_stage(state, 0).unwrap_err();
+        assert!(matches!(e, LedgerError::Missing { .. }), "{e}");
+        assert!(e.to_string().contains("ledger-reset"), "{e}");
+        // Deleted.
+        std::fs::remove_file(&ledger_path).unwrap();
+        assert!(matches!(Ledger::open_stage(state, 0), Err(LedgerError::Missing { .. })));
+        assert!(!ledger_path.exists(), "a refused open creates nothing");
+        // Another ledger put in its place (a backup from elsewhere).
+        Ledger::open(&ledger_path, 0).unwrap();
+        let e = Ledger::open_stage(state, 0).unwrap_err();
+        assert!(matches!(e, LedgerError::Replaced { .. }), "{e}");
+        // The operator acknowledges: the stray file is kept aside, the new ledger says why.
+        std::fs::write(&ledger_path, &good).unwrap();
+        let _ = std::fs::remove_file(state.join(format!("{LEDGER_FILE}-wal")));
+        let (l, kept) = Ledger::reset_acknowledged(state, 0, "disk swapped, ticket 12", 5).unwrap();
+        assert_eq!(kept.len(), 1);
+        assert!(kept[0].exists());
+        assert_ne!(l.ledger_id().unwrap(), first_id);
+        let ev = l.status(10).unwrap().last_events;
+        assert!(ev.iter().any(|e| e.kind == "ledger-reset" && e.detail.contains("ticket 12")), "{ev:?}");
+        drop(l);
+        Ledger::open_stage(state, 0).unwrap();
+    }
+
+    #[test]
+    fn high_water_mark_follows_everything_recorded() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        assert_eq!(l.high_water_ms().unwrap(), 0);
+        l.set_active(&active(1000.0, 10_000.0)).unwrap();
+        l.record_run(1_000, 5, 999).unwrap();
+        assert_eq!(l.high_water_ms().unwrap(), 1_000);
+        l.reserve(LightKind::Idle, "black", 1.0, 2_000, 9_000).unwrap();
+        assert_eq!(l.high_water_ms().unwrap(), 2_000);
+        l.log_event(4_000, "x", "y").unwrap();
+        assert_eq!(l.high_water_ms().unwrap(), 4_000);
+        assert_eq!(l.runs().unwrap(), vec![(1_000, 5)]);
+    }
+
+    #[test]
+    fn object_pin_is_recorded_with_an_event() {
+        let mut l = Ledger::open_in_memory(0).unwrap();
+        assert_eq!(l.pinned_object().unwrap(), None);
+        l.pin_object("vase", 1, "first").unwrap();
+        l.pin_object("vase", 2, "again").unwrap();
+        assert_eq!(l.pinned_object().unwrap().as_deref(), Some("vase"));
+        l.pin_object("jar", 3, "configured").unwrap();
+        assert_eq!(l.pinned_object().unwrap().as_deref(), Some("jar"));
+        let ev = l.status(4).unwrap().last_events;
+        assert_eq!(ev.iter().filter(|e| e.kind == "object-pin").count(), 2);
     }
 
     #[test]
@@ -794,6 +1113,28 @@ mod tests {
         assert_eq!(s.open_reservations, 1);
         let ro = Ledger::open_read_only(&p, 0).unwrap();
         assert!((ro.total("vase").unwrap() - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn a_schema_1_ledger_is_migrated_with_its_history() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("ledger.sqlite");
+        {
+            let c = Connection::open(&p).unwrap();
+            c.execute_batch(MIGRATIONS[0]).unwrap();
+            c.pragma_update(None, "user_version", 1).unwrap();
+            c.execute(
+                "INSERT INTO exposure (object, kind, label, lux, start_ms, end_ms, committed)
+                 VALUES ('vase', 'showing', 'r1', 36.0, 0, 100000, 1)",
+                [],
+            )
+            .unwrap();
+        }
+        let l = Ledger::open(&p, 0).unwrap();
+        assert_eq!(l.status(0).unwrap().schema_version, SCHEMA_VERSION);
+        assert!((l.total("vase").unwrap() - 1.0).abs() < 1e-9);
+        assert_eq!(l.high_water_ms().unwrap(), 0);
+        assert!(!l.ledger_id().unwrap().is_empty());
     }
 
     #[test]

@@ -1,5 +1,6 @@
 //! restage-appliance: the unattended stage player (state machine, ledger, outputs, inputs).
 
+pub mod clock;
 pub mod config;
 pub mod input;
 pub mod ledger;

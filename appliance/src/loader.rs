@@ -3,6 +3,11 @@
 //! independent check — before anything is shown. Only then is the version recorded.
 //! Frames are read again (and re-hashed) when needed; the idle scene and the first
 //! restoration stay in memory so a press shows light within a frame.
+//!
+//! Loading has two halves so the player's event loop never waits on a verification:
+//! [`prepare`] (everything slow: signature, hashes, light check, frames; reads the ledger
+//! only) runs on a worker thread, and [`activate`] (the outputs' modes, the version and
+//! object records; quick) runs on the loop, between showings.
 
 use std::collections::HashMap;
 use std::fs::File;
@@ -32,6 +37,11 @@ pub enum LoadError {
     Version { path: PathBuf, source: LedgerError },
     #[error("bundle {path} refused: {problem}")]
     Unplayable { path: PathBuf, problem: String },
+    #[error(
+        "bundle {path} refused: it is for object {object:?}, but this stage is pinned to {expected:?} \
+         (by {by}); budgets are kept per object, so set object_id in the configuration to change it"
+    )]
+    Object { path: PathBuf, object: String, expected: String, by: &'static str },
     #[error("ledger: {0}")]
     Ledger(LedgerError),
 }
@@ -66,6 +76,25 @@ impl FrameStore {
         self.cache.insert(s, frames.clone());
         Ok(frames)
     }
+
+    /// Reads the pinned scenes (the idle one and the first restoration) into memory.
+    pub fn preload(&mut self) -> Result<(), BundleError> {
+        for s in self.pinned.clone() {
+            self.scene(s)?;
+        }
+        Ok(())
+    }
+
+    /// Drops every frame held in memory (frames are read again when needed): before a new
+    /// bundle's frames are read, so two bundles' frames are never held at once.
+    pub fn release(&mut self) {
+        self.cache.clear();
+    }
+
+    /// Bytes of frames held in memory.
+    pub fn held_bytes(&self) -> usize {
+        self.cache.values().flat_map(|f| f.iter()).map(Vec::len).sum()
+    }
 }
 
 /// Verifies everything about the bundle at `path` (signature with a trusted key, validity
@@ -94,22 +123,62 @@ pub fn open_verified(
     Ok((bundle, hash))
 }
 
-/// Verifies and loads the bundle at `path`. `idle` is the config's idle override, if any.
-/// `playable` is asked last whether the outputs can show the bundle (e.g. the projectors
-/// offer its frame size; it may set the modes); a refusal there is `Unplayable` too.
-/// On success the version is recorded as accepted and the bundle made active in the ledger:
-/// a bundle the stage cannot show never advances the anti-rollback record.
-pub fn load(
+/// The object a bundle must be for: the configured id, else the ledger's pin.
+pub fn check_object(
+    path: &Path,
+    ledger: &Ledger,
+    configured: Option<&str>,
+    object: &str,
+) -> Result<(), LoadError> {
+    let (expected, by) = match configured {
+        Some(c) => (Some(c.to_string()), "the configuration's object_id"),
+        None => (ledger.pinned_object().map_err(LoadError::Ledger)?, "the first bundle this stage accepted"),
+    };
+    match expected {
+        Some(e) if e != object => {
+            Err(LoadError::Object { path: path.into(), object: object.into(), expected: e, by })
+        }
+        _ => Ok(()),
+    }
+}
+
+/// A verified bundle ready to become the active one ([`activate`]).
+#[derive(Debug)]
+pub struct Prepared {
+    path: PathBuf,
+    hash: String,
+    show: Show,
+    store: FrameStore,
+}
+
+impl Prepared {
+    pub fn show(&self) -> &Show {
+        &self.show
+    }
+
+    /// Reads its pinned scenes (re-hashed): done on the loop at activation, after the old
+    /// bundle's frames were released.
+    pub fn preload(&mut self) -> Result<(), LoadError> {
+        let path = self.path.clone();
+        self.store.preload().map_err(|source| LoadError::Refused { path, source })
+    }
+}
+
+/// Verifies the bundle at `path` and builds what the player needs: the slow half of a load,
+/// which only reads the ledger (anti-rollback record, object pin). Frames stay on disk until
+/// [`Prepared::preload`].
+/// `idle` is the config's idle override, `object_id` the configured object, if any.
+pub fn prepare(
     path: &Path,
     trust_dir: &Path,
-    ledger: &mut Ledger,
+    ledger: &Ledger,
     now_unix_ms: i64,
     idle: Option<IdleMode>,
-    playable: impl FnOnce(&Show) -> Result<(), String>,
-) -> Result<Loaded, LoadError> {
+    object_id: Option<&str>,
+) -> Result<Prepared, LoadError> {
     let (bundle, hash) = open_verified(path, trust_dir, ledger, now_unix_ms)?;
+    check_object(path, ledger, object_id, &bundle.manifest.object.id)?;
     let m = &bundle.manifest;
-    let refused = |source| LoadError::Refused { path: path.into(), source };
     let unplayable = |problem: String| LoadError::Unplayable { path: path.into(), problem };
 
     // The black level's light, by the same independent check on all-zero frames.
@@ -209,9 +278,43 @@ pub fn load(
         expires_unix_ms: m.expires_unix_s.map(|s| s.saturating_mul(1000)),
     };
 
-    playable(&show).map_err(|e| unplayable(format!("the outputs cannot show it: {e}")))?;
-    // Everything verified: record the version, make it the active bundle.
+    let mut pinned = Vec::new();
+    if let Look::Scene(i) = show.idle {
+        pinned.push(i);
+    }
+    if let Some(&first) = show.cycle().first() {
+        pinned.push(first);
+    }
+    let store = FrameStore { bundle, cache: HashMap::new(), pinned };
+    Ok(Prepared { path: path.into(), hash, show, store })
+}
+
+/// Makes a prepared bundle the active one: checks the version and object again (the ledger
+/// may have moved on while it was prepared), asks the outputs (`playable`: e.g. the
+/// projectors offer its frame size; it may set the modes), then records the version as
+/// accepted, pins the object and makes it active. A bundle the stage cannot show never
+/// advances the anti-rollback record.
+pub fn activate(
+    prepared: Prepared,
+    ledger: &mut Ledger,
+    now_unix_ms: i64,
+    object_id: Option<&str>,
+    playable: impl FnOnce(&Show) -> Result<(), String>,
+) -> Result<Loaded, LoadError> {
+    let Prepared { path, hash, show, store } = prepared;
+    let path = path.as_path();
+    ledger
+        .check_version(&show.object_id, show.version, &hash)
+        .map_err(|source| LoadError::Version { path: path.into(), source })?;
+    check_object(path, ledger, object_id, &show.object_id)?;
+    playable(&show).map_err(|e| LoadError::Unplayable {
+        path: path.into(),
+        problem: format!("the outputs cannot show it: {e}"),
+    })?;
+    // Everything verified: record the version, pin the object, make it the active bundle.
     ledger.accept_version(&show.object_id, show.version, &hash, now_unix_ms).map_err(LoadError::Ledger)?;
+    let why = if object_id.is_some() { "configured object_id" } else { "first accepted bundle" };
+    ledger.pin_object(&show.object_id, now_unix_ms, why).map_err(LoadError::Ledger)?;
     ledger
         .set_active(&ActiveBundle {
             object: show.object_id.clone(),
@@ -226,19 +329,6 @@ pub fn load(
             },
         })
         .map_err(LoadError::Ledger)?;
-
-    let mut pinned = Vec::new();
-    if let Look::Scene(i) = show.idle {
-        pinned.push(i);
-    }
-    if let Some(&first) = show.cycle().first() {
-        pinned.push(first);
-    }
-    let mut store = FrameStore { bundle, cache: HashMap::new(), pinned: pinned.clone() };
-    for s in pinned {
-        let frames = store.scene(s).map_err(refused)?;
-        store.cache.insert(s, frames);
-    }
     tracing::info!(
         object = %show.object_id,
         version = show.version,
@@ -247,6 +337,21 @@ pub fn load(
         "bundle verified and loaded"
     );
     Ok(Loaded { show: Arc::new(show), store })
+}
+
+/// Verifies and loads the bundle at `path` in one go ([`prepare`] then [`activate`]).
+pub fn load(
+    path: &Path,
+    trust_dir: &Path,
+    ledger: &mut Ledger,
+    now_unix_ms: i64,
+    idle: Option<IdleMode>,
+    object_id: Option<&str>,
+    playable: impl FnOnce(&Show) -> Result<(), String>,
+) -> Result<Loaded, LoadError> {
+    let mut prepared = prepare(path, trust_dir, ledger, now_unix_ms, idle, object_id)?;
+    prepared.preload()?;
+    activate(prepared, ledger, now_unix_ms, object_id, playable)
 }
 
 #[cfg(test)]
@@ -271,8 +376,9 @@ mod tests {
         let (v3, v4) = (write(3), write(4));
         let mut ledger = Ledger::open_in_memory(0).unwrap();
         let now = 1_700_000_100_000;
-        assert!(load(&v3, &trust, &mut ledger, now, None, |_| Ok(())).is_ok());
-        let e = load(&v4, &trust, &mut ledger, now, None, |_| Err("no 32x24 mode".into())).err().unwrap();
+        assert!(load(&v3, &trust, &mut ledger, now, None, None, |_| Ok(())).is_ok());
+        let e =
+            load(&v4, &trust, &mut ledger, now, None, None, |_| Err("no 32x24 mode".into())).err().unwrap();
         assert!(
             e.to_string().contains("v4.bundle") && e.to_string().contains("cannot show it: no 32x24 mode"),
             "{e}"
@@ -281,7 +387,7 @@ mod tests {
         // The current, older bundle still loads (no rollback refusal).
         let mut asked = false;
         assert!(
-            load(&v3, &trust, &mut ledger, now, None, |_| {
+            load(&v3, &trust, &mut ledger, now, None, None, |_| {
                 asked = true;
                 Ok(())
             })

@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
+use restage_appliance::clock::{Clock, LedgerClock, SystemTime, TimeSource};
 use restage_appliance::config::{Config, LEDGER_FILE};
 use restage_appliance::ledger::Ledger;
 use restage_appliance::loader;
-use restage_appliance::player::{Clock, SystemClock};
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
@@ -42,6 +42,16 @@ enum Command {
         #[arg(long)]
         config: PathBuf,
     },
+    /// Acknowledge that this stage's ledger is lost or was replaced (the appliance refuses
+    /// light until then): the old file is kept aside, a fresh ledger records REASON. Run it
+    /// with the appliance stopped.
+    LedgerReset {
+        #[arg(long)]
+        config: PathBuf,
+        /// Why (recorded in the new ledger), e.g. "disk replaced after failure, ticket 1234".
+        #[arg(long)]
+        reason: String,
+    },
     /// Verify a bundle (signature, validity, every section, every scene's light bound) with
     /// the same code the player loads bundles with.
     Verify {
@@ -62,7 +72,29 @@ fn main() -> Result<()> {
         Command::Status { config, json } => status(&config, json),
         Command::Install { bundle, config } => install(&bundle, &config),
         Command::Verify { bundle, trust } => verify(&bundle, &trust),
+        Command::LedgerReset { config, reason } => ledger_reset(&config, &reason),
     }
+}
+
+fn ledger_reset(config: &Path, reason: &str) -> Result<()> {
+    let config = Config::load(config)?;
+    if reason.trim().len() < 3 {
+        bail!("--reason must say why the ledger is being reset (it is recorded)");
+    }
+    let now = SystemTime.wall_ms();
+    let (_, kept) =
+        Ledger::reset_acknowledged(&config.state_dir, config.ledger.utc_offset_minutes, reason, now)?;
+    eprintln!("a fresh ledger records the reset in {}", config.state_dir.join(LEDGER_FILE).display());
+    for k in kept {
+        eprintln!("kept the old file as {}", k.display());
+    }
+    Ok(())
+}
+
+/// Ledger time for a tool run beside the appliance: the wall clock, never below the ledger's
+/// high-water mark.
+fn ledger_now(ledger: &Ledger) -> Result<i64> {
+    Ok(LedgerClock::new(SystemTime, ledger.high_water_ms()?).now().unix_ms)
 }
 
 fn verify(bundle: &Path, trust: &Path) -> Result<()> {
@@ -95,7 +127,7 @@ fn status(config: &Path, json: bool) -> Result<()> {
         bail!("no ledger at {} (has the appliance run yet?)", path.display());
     }
     let ledger = Ledger::open_read_only(&path, config.ledger.utc_offset_minutes)?;
-    let s = ledger.status(SystemClock::new().now().unix_ms)?;
+    let s = ledger.status(ledger_now(&ledger)?)?;
     let mut out = std::io::stdout().lock();
     if json {
         writeln!(out, "{}", serde_json::to_string_pretty(&s)?)?;
@@ -153,10 +185,10 @@ fn status(config: &Path, json: bool) -> Result<()> {
 
 fn install(bundle: &Path, config: &Path) -> Result<()> {
     let config = Config::load(config)?;
-    let now = SystemClock::new().now();
-    let ledger_path = config.state_dir.join(LEDGER_FILE);
-    let ledger = Ledger::open(&ledger_path, config.ledger.utc_offset_minutes)?;
-    let (verified, hash) = loader::open_verified(bundle, &config.trust_dir, &ledger, now.unix_ms)?;
+    let ledger = Ledger::open_stage(&config.state_dir, config.ledger.utc_offset_minutes)?;
+    let now = ledger_now(&ledger)?;
+    let (verified, hash) = loader::open_verified(bundle, &config.trust_dir, &ledger, now)?;
+    loader::check_object(bundle, &ledger, config.object_id.as_deref(), &verified.manifest.object.id)?;
     let m = &verified.manifest;
     eprintln!(
         "verified: {} version {} ({} scenes), manifest {}",
@@ -184,7 +216,7 @@ fn install(bundle: &Path, config: &Path) -> Result<()> {
     }
     // The file now in place must be the one verified (a bundle changed between verify and
     // copy would otherwise slip in): verify the installed copy again.
-    loader::open_verified(&target, &config.trust_dir, &ledger, now.unix_ms)
+    loader::open_verified(&target, &config.trust_dir, &ledger, now)
         .context("the installed copy does not verify")?;
     eprintln!("installed as {}", target.display());
     if let Some(sock) = &config.inputs.control_socket {

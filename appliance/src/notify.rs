@@ -35,6 +35,11 @@ impl Notifier {
         Notifier { target, watchdog }
     }
 
+    /// systemd's watchdog timeout (`WatchdogSec`), if it asked for pings.
+    pub fn watchdog_timeout(&self) -> Option<Duration> {
+        self.watchdog
+    }
+
     /// How often to ping the watchdog (half its timeout), if systemd asked for pings.
     pub fn watchdog_interval(&self) -> Option<Duration> {
         self.watchdog.map(|w| w / 2)

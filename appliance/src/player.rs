@@ -10,48 +10,7 @@ use std::sync::Arc;
 
 use crate::show::Show;
 
-/// The time, injected: a monotonic clock for timers and the wall clock for the ledger.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Now {
-    /// Monotonic milliseconds (any origin).
-    pub mono_ms: u64,
-    /// Unix time in milliseconds.
-    pub unix_ms: i64,
-}
-
-impl Now {
-    pub fn plus(self, ms: u64) -> Now {
-        Now { mono_ms: self.mono_ms + ms, unix_ms: self.unix_ms + ms as i64 }
-    }
-}
-
-/// A source of `Now`.
-pub trait Clock {
-    fn now(&self) -> Now;
-}
-
-/// The real clock.
-#[derive(Debug, Default)]
-pub struct SystemClock {
-    start: Option<std::time::Instant>,
-}
-
-impl SystemClock {
-    pub fn new() -> SystemClock {
-        SystemClock { start: Some(std::time::Instant::now()) }
-    }
-}
-
-impl Clock for SystemClock {
-    fn now(&self) -> Now {
-        let mono_ms = self.start.map(|s| s.elapsed().as_millis() as u64).unwrap_or(0);
-        let unix_ms = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.as_millis() as i64)
-            .unwrap_or(0);
-        Now { mono_ms, unix_ms }
-    }
-}
+pub use crate::clock::{Clock, Now};
 
 /// What can happen to the player.
 #[derive(Clone, Debug)]
@@ -148,6 +107,9 @@ pub trait Accountant {
         scenes: &[String],
         ended_by: &str,
     ) -> Result<(), Refusal>;
+    /// When the last showing's light (showing or fade reservations) ended, as recorded: the
+    /// cooldown runs from there, across restarts and reloads.
+    fn last_showing_end(&self) -> Option<i64>;
 }
 
 /// Player timing (from the config) on top of the bundle's policy.
@@ -160,6 +122,9 @@ pub struct PlayerSettings {
     pub cooldown_ms: Option<u64>,
     pub reserve_ms: u64,
     pub renew_ahead_ms: u64,
+    /// Time from a blank command to the light being off at the object (display pipeline and
+    /// projector latency): commits pay until `now + this`.
+    pub light_off_latency_ms: u64,
 }
 
 /// How often an exhausted budget is looked at again.
@@ -208,9 +173,17 @@ pub struct Player {
     lease: Option<Lease>,
     /// Last press accepted (start or cycle), for the press-rate limit.
     last_press_ms: Option<u64>,
-    /// Leases whose light has been switched away; committed by `settle` once the outputs
-    /// have carried out the commands, so the committed end is never before the light's.
-    pending_commits: Vec<LeaseId>,
+    /// Ledger writes that wait until the outputs have carried out the commands: commits of
+    /// leases whose light has been switched away (so a committed end is never before the
+    /// light's) and showing records (so no write delays a blank).
+    deferred: Vec<Deferred>,
+}
+
+/// A ledger write done by `settle`, after the outputs acted.
+#[derive(Clone, Debug, PartialEq)]
+enum Deferred {
+    Commit(LeaseId),
+    Showing { started: i64, ended: i64, scenes: Vec<String>, ended_by: String },
 }
 
 impl Player {
@@ -223,20 +196,36 @@ impl Player {
             look: Look::Off,
             lease: None,
             last_press_ms: None,
-            pending_commits: Vec::new(),
+            deferred: Vec::new(),
         }
     }
 
-    /// Commits the exposure of leases whose light is off, at `now`: call it after the outputs
-    /// carried out the commands `handle` returned. A failed commit leaves the reservation
-    /// standing (an over-count), so it is only logged.
+    /// Commits the exposure of leases whose light is off, at `now` plus the light-off
+    /// latency, and records finished showings: call it after the outputs carried out the
+    /// commands `handle` returned. A failed commit leaves the reservation standing (an
+    /// over-count), so it is only logged.
     pub fn settle(&mut self, now: Now, acct: &mut dyn Accountant) {
-        for id in self.pending_commits.drain(..) {
-            // One millisecond more: `unix_ms` is truncated, the light's true end is not.
-            if let Err(e) = acct.commit(id, now.unix_ms + 1) {
-                tracing::error!(?e, lease = id, "could not commit exposure; the reservation stands");
+        // One millisecond more: `unix_ms` is truncated, the light's true end is not.
+        let end = now.unix_ms + self.settings.light_off_latency_ms as i64 + 1;
+        for d in std::mem::take(&mut self.deferred) {
+            match d {
+                Deferred::Commit(id) => {
+                    if let Err(e) = acct.commit(id, end) {
+                        tracing::error!(?e, lease = id, "could not commit exposure; the reservation stands");
+                    }
+                }
+                Deferred::Showing { started, ended, scenes, ended_by } => {
+                    if let Err(e) = acct.record_showing(started, ended, &scenes, &ended_by) {
+                        tracing::warn!(?e, "could not record the showing");
+                    }
+                }
             }
         }
+    }
+
+    /// Whether `settle` has ledger writes waiting.
+    pub fn has_deferred(&self) -> bool {
+        !self.deferred.is_empty()
     }
 
     pub fn state(&self) -> &State {
@@ -305,26 +294,31 @@ impl Player {
             Event::Press => self.press(now, acct, &mut out),
             Event::Release => {}
             Event::Tick => {}
-            Event::Stop => self.go_dark(
-                now,
-                acct,
-                &mut out,
-                State::Dark { reason: "stopped by operator".into() },
-                "stop",
-            ),
+            Event::Stop => {
+                self.go_dark(now, &mut out, State::Dark { reason: "stopped by operator".into() }, "stop")
+            }
             Event::Fault(reason) => {
                 tracing::error!(%reason, "fault: outputs dark");
-                self.go_dark(now, acct, &mut out, State::Fault { reason }, "fault")
+                self.go_dark(now, &mut out, State::Fault { reason }, "fault")
             }
             Event::Unload(reason) => {
-                self.go_dark(now, acct, &mut out, State::Dark { reason }, "reload");
+                self.go_dark(now, &mut out, State::Dark { reason }, "reload");
                 self.show = None;
             }
             Event::Load(show) => {
-                self.go_dark(now, acct, &mut out, State::Dark { reason: "loading".into() }, "reload");
+                self.go_dark(now, &mut out, State::Dark { reason: "loading".into() }, "reload");
                 self.show = Some(show);
                 self.last_press_ms = None;
                 self.enter_idle(now, acct, &mut out);
+                // The cooldown after the last showing holds across reloads and restarts.
+                if self.state == State::Idle
+                    && let Some(end) = acct.last_showing_end()
+                {
+                    let left = end + self.cooldown_ms() as i64 - now.unix_ms;
+                    if left > 0 {
+                        self.state = State::Cooldown { until_ms: now.mono_ms + left as u64 };
+                    }
+                }
             }
         }
         self.run_timers(now, acct, &mut out);
@@ -345,7 +339,7 @@ impl Player {
             return;
         }
         match &self.state {
-            State::Idle | State::Exhausted { .. } => {
+            State::Idle => {
                 self.last_press_ms = Some(now.mono_ms);
                 let scene = cycle[0];
                 match self.switch_light(now, Look::Scene(scene), LightKind::Showing, acct, out) {
@@ -358,7 +352,7 @@ impl Player {
                             last_change_ms: now.mono_ms,
                         };
                     }
-                    Err(r) => self.refused(now, r, acct, out),
+                    Err(r) => self.refused(now, r, out),
                 }
             }
             State::Showing { scene, started, scenes, .. } => {
@@ -375,11 +369,21 @@ impl Player {
                         self.state =
                             State::Showing { scene: next, started, scenes, last_change_ms: now.mono_ms };
                     }
-                    Err(r) => self.refused(now, r, acct, out),
+                    // The scene on show is paid for until its lease runs out: keep it. Going
+                    // dark here and starting afresh on the next press would strobe the object.
+                    Err(Refusal::Exhausted(reason)) => {
+                        tracing::warn!(%reason, "no budget for the next scene; the current one stays");
+                    }
+                    Err(r) => self.refused(now, r, out),
                 }
             }
-            // The showing is over, or light is not allowed now: presses do nothing.
-            State::Ending { .. } | State::Cooldown { .. } | State::Dark { .. } | State::Fault { .. } => {}
+            // The showing is over, or light is not allowed now (an exhausted budget is looked
+            // at again by its own timer, never by a press): presses do nothing.
+            State::Ending { .. }
+            | State::Cooldown { .. }
+            | State::Dark { .. }
+            | State::Fault { .. }
+            | State::Exhausted { .. } => {}
         }
     }
 
@@ -392,7 +396,7 @@ impl Player {
             }
             match self.state.clone() {
                 State::Showing { scene, .. } => {
-                    self.finish_showing(now, "timer", acct);
+                    self.finish_showing(now, "timer");
                     self.begin_ending(now, scene, acct, out);
                 }
                 State::Ending { from, fade_start_ms, step, steps } => {
@@ -436,7 +440,7 @@ impl Player {
             Ok(()) => {
                 self.state = State::Ending { from, fade_start_ms: now.mono_ms, step: 0, steps };
             }
-            Err(r) => self.refused(now, r, acct, out),
+            Err(r) => self.refused(now, r, out),
         }
     }
 
@@ -444,7 +448,7 @@ impl Player {
         let to = self.idle_look();
         match self.switch_light(now, to, LightKind::Idle, acct, out) {
             Ok(()) => self.state = State::Cooldown { until_ms: now.mono_ms + self.cooldown_ms() },
-            Err(r) => self.refused(now, r, acct, out),
+            Err(r) => self.refused(now, r, out),
         }
     }
 
@@ -455,53 +459,51 @@ impl Player {
         let look = self.idle_look();
         match self.switch_light(now, look, LightKind::Idle, acct, out) {
             Ok(()) => self.state = State::Idle,
-            Err(r) => self.refused(now, r, acct, out),
+            Err(r) => self.refused(now, r, out),
         }
     }
 
-    fn refused(&mut self, now: Now, refusal: Refusal, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
+    fn refused(&mut self, now: Now, refusal: Refusal, out: &mut Vec<Command>) {
         match refusal {
             Refusal::Exhausted(reason) => {
                 tracing::warn!(%reason, "light budget exhausted: outputs dark");
                 let retry_ms = now.mono_ms + EXHAUSTED_RETRY_MS;
-                self.go_dark(now, acct, out, State::Exhausted { reason, retry_ms }, "budget");
+                self.go_dark(now, out, State::Exhausted { reason, retry_ms }, "budget");
             }
             Refusal::Failed(reason) => {
                 tracing::error!(%reason, "ledger failed: outputs dark");
-                self.go_dark(now, acct, out, State::Fault { reason: format!("ledger: {reason}") }, "fault");
+                self.go_dark(now, out, State::Fault { reason: format!("ledger: {reason}") }, "fault");
             }
         }
     }
 
-    /// Outputs off at once, then the ledger is told (a failing ledger cannot keep light on).
-    fn go_dark(
-        &mut self,
-        now: Now,
-        acct: &mut dyn Accountant,
-        out: &mut Vec<Command>,
-        state: State,
-        why: &str,
-    ) {
+    /// Outputs off at once; the ledger hears of it in `settle`, after the outputs acted (a
+    /// failing or locked ledger cannot keep light on or delay the blank).
+    fn go_dark(&mut self, now: Now, out: &mut Vec<Command>, state: State, why: &str) {
         if self.look != Look::Off || self.lease.is_some() {
             out.push(Command::Show(Look::Off));
             self.look = Look::Off;
         }
         if matches!(self.state, State::Showing { .. }) {
-            self.finish_showing(now, why, acct);
+            self.finish_showing(now, why);
         }
         if let Some(old) = self.lease.take() {
-            self.pending_commits.push(old.id);
+            self.deferred.push(Deferred::Commit(old.id));
         }
         self.state = state;
     }
 
-    fn finish_showing(&mut self, now: Now, why: &str, acct: &mut dyn Accountant) {
+    /// Queues the showing's record for `settle` (after the outputs acted).
+    fn finish_showing(&mut self, now: Now, why: &str) {
         if let State::Showing { started, scenes, .. } = &self.state {
             let ids: Vec<String> = scenes.iter().map(|&s| self.scene_id(s)).collect();
             tracing::info!(ended_by = why, ms = now.mono_ms - started.mono_ms, "showing ended");
-            if let Err(e) = acct.record_showing(started.unix_ms, now.unix_ms, &ids, why) {
-                tracing::warn!(?e, "could not record the showing");
-            }
+            self.deferred.push(Deferred::Showing {
+                started: started.unix_ms,
+                ended: now.unix_ms,
+                scenes: ids,
+                ended_by: why.into(),
+            });
         }
     }
 
@@ -518,7 +520,7 @@ impl Player {
             out.push(Command::Show(Look::Off));
             self.look = Look::Off;
             if let Some(old) = self.lease.take() {
-                self.pending_commits.push(old.id);
+                self.deferred.push(Deferred::Commit(old.id));
             }
             return Ok(());
         }
@@ -546,7 +548,7 @@ impl Player {
         let id = acct.reserve(kind, label, lux, now.unix_ms, until.unix_ms)?;
         let new = Lease { id, lux, until_mono_ms: until.mono_ms };
         if let Some(old) = self.lease.replace(new) {
-            self.pending_commits.push(old.id);
+            self.deferred.push(Deferred::Commit(old.id));
         }
         Ok(())
     }
@@ -556,10 +558,19 @@ impl Player {
         if now.mono_ms + self.settings.renew_ahead_ms < lease.until_mono_ms {
             return;
         }
+        if now.mono_ms > lease.until_mono_ms {
+            // The process did not run while its lease ran out (stopped, starved, suspended):
+            // the light stayed on. The extension below, or the commit of the actual end if it
+            // is refused, records that time; say so.
+            tracing::error!(
+                overrun_ms = now.mono_ms - lease.until_mono_ms,
+                "exposure lease ran out while lit (the appliance was stalled); paying the actual time"
+            );
+        }
         let until = now.plus(self.settings.reserve_ms);
         match acct.extend(lease.id, until.unix_ms) {
             Ok(()) => self.lease = Some(Lease { until_mono_ms: until.mono_ms, ..lease }),
-            Err(r) => self.refused(now, r, acct, out),
+            Err(r) => self.refused(now, r, out),
         }
     }
 

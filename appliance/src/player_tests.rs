@@ -58,11 +58,15 @@ fn settings() -> PlayerSettings {
         cooldown_ms: None,
         reserve_ms: RESERVE,
         renew_ahead_ms: 1_000,
+        light_off_latency_ms: LATENCY,
     }
 }
 
+const LATENCY: u64 = 100;
+
 #[derive(Clone, Debug)]
 struct Lease {
+    kind: LightKind,
     lux: f64,
     start: i64,
     end: i64,
@@ -99,7 +103,7 @@ impl Books {
 impl Accountant for Books {
     fn reserve(
         &mut self,
-        _: LightKind,
+        kind: LightKind,
         _: &str,
         lux: f64,
         from: i64,
@@ -107,7 +111,7 @@ impl Accountant for Books {
     ) -> Result<LeaseId, Refusal> {
         self.check(lux * (until - from) as f64)?;
         self.next += 1;
-        self.leases.insert(self.next, Lease { lux, start: from, end: until });
+        self.leases.insert(self.next, Lease { kind, lux, start: from, end: until });
         Ok(self.next)
     }
     fn extend(&mut self, id: LeaseId, until: i64) -> Result<(), Refusal> {
@@ -120,13 +124,21 @@ impl Accountant for Books {
         if self.fail {
             return Err(Refusal::Failed("disk full".into()));
         }
+        // The actual end, as the ledger does (also past the reservation).
         let l = self.leases.get_mut(&id).unwrap();
-        l.end = l.end.min(end).max(l.start);
+        l.end = end.max(l.start);
         Ok(())
     }
     fn record_showing(&mut self, start: i64, end: i64, _: &[String], by: &str) -> Result<(), Refusal> {
         self.showings.push((start, end, by.into()));
         Ok(())
+    }
+    fn last_showing_end(&self) -> Option<i64> {
+        self.leases
+            .values()
+            .filter(|l| matches!(l.kind, LightKind::Showing | LightKind::Fade))
+            .map(|l| l.end)
+            .max()
     }
 }
 
@@ -445,7 +457,11 @@ fn stop_goes_dark_and_load_returns_to_idle() {
     assert_eq!(s.books.showings.last().unwrap().2, "stop");
     s.event(Event::Unload("bundle refused".into()));
     assert_eq!(s.state(), "dark");
+    // A stopped showing is still followed by its cooldown (from the light's end, latency
+    // included), then idle.
     s.event(Event::Load(show(s.idle)));
+    assert_eq!(s.state(), "cooldown");
+    s.advance(COOLDOWN + LATENCY + 1);
     assert_eq!(s.state(), "idle");
     s.verify_invariants();
 }
@@ -539,4 +555,69 @@ proptest! {
         prop_assert!(s.longest_showing_ms(idle_lux) <= MAX_SHOW as i64);
         prop_assert!(s.books.used() <= s.books.budget_lux_ms + 1e-6);
     }
+}
+
+#[test]
+fn blank_comes_before_any_ledger_write_at_a_fault() {
+    let mut s = Sim::new(IdleMode::Original, 1e9);
+    s.event(Event::Press);
+    s.advance(2_000);
+    let showings = s.books.showings.len();
+    let open: Vec<i64> = s.books.leases.values().map(|l| l.end).collect();
+    // The player's answer to a fault: dark first; the showing record and the commit wait
+    // for `settle`, after the outputs went dark.
+    let cmds = s.p.handle(s.now, Event::Fault("output lost".into()), &mut s.books);
+    assert_eq!(cmds, vec![Command::Show(Look::Off)]);
+    assert_eq!(s.books.showings.len(), showings);
+    assert_eq!(s.books.leases.values().map(|l| l.end).collect::<Vec<_>>(), open);
+    assert!(s.p.has_deferred());
+    s.p.settle(s.now, &mut s.books);
+    assert_eq!(s.books.showings.len(), showings + 1);
+    assert!(!s.p.has_deferred());
+}
+
+#[test]
+fn a_stall_past_the_lease_is_paid_when_the_process_runs_again() {
+    // Stopped (SIGSTOP, starved) while lit for longer than the lease and past the showing's
+    // end: nothing ticks, the light stays on. On resume the timer ends the showing and the
+    // old lease is committed at the actual end, not its reserved one.
+    let mut s = Sim::new(IdleMode::Original, 1e9);
+    s.event(Event::Press);
+    s.now = s.now.plus(MAX_SHOW + 3 * RESERVE);
+    s.event(Event::Tick);
+    s.verify_invariants();
+    assert_ne!(s.state(), "showing");
+}
+
+#[test]
+fn presses_near_exhaustion_never_strobe() {
+    // Room for about 8 s of the restoration: presses at 50 per second for a minute.
+    let mut s = Sim::new(IdleMode::Off, 50.0 * 8.0 / 3600.0);
+    for _ in 0..3_000 {
+        s.event(Event::Press);
+        s.advance(20);
+    }
+    s.verify_invariants();
+    let lit_starts = s.light.windows(2).filter(|w| w[0].1 == 0.0 && w[1].1 > 0.0).count();
+    assert!(lit_starts <= 2, "{lit_starts} separate flashes of light");
+    assert!(s.books.used() <= s.books.budget_lux_ms + 1e-6);
+}
+
+#[test]
+fn cooldown_holds_across_a_reload() {
+    let mut s = Sim::new(IdleMode::Black, 1e9);
+    s.event(Event::Press);
+    s.advance(MAX_SHOW);
+    assert_eq!(s.state(), "cooldown");
+    // A reload (or a restart: the books are the ledger) in the middle of the cooldown.
+    s.event(Event::Load(show(s.idle)));
+    assert_eq!(s.state(), "cooldown");
+    s.event(Event::Press);
+    assert_ne!(s.state(), "showing");
+    // Counted from the light's end (the light-off latency included).
+    s.advance(COOLDOWN + LATENCY + 1);
+    assert_eq!(s.state(), "idle");
+    s.event(Event::Press);
+    assert_eq!(s.state(), "showing");
+    s.verify_invariants();
 }

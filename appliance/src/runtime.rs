@@ -1,6 +1,9 @@
 //! The appliance's event loop (tokio, one thread): inputs, timers and signals in; the player
 //! decides; the outputs show; the ledger pays. Outputs are blanked before anything else and
 //! on every fault; systemd hears READY once the outputs are up, and watchdog pings from here.
+//! Nothing slow runs on this thread: a reload's verification runs on a worker thread and the
+//! new bundle is swapped in between showings; the ledger waits at most `busy_timeout_ms` for
+//! another process's lock.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -10,15 +13,22 @@ use thiserror::Error;
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::mpsc;
 
+use crate::clock::{Clock, LedgerClock, SystemTime, TimeSource, monotonic_us};
 use crate::config::{Config, LEDGER_FILE, OutputConfig};
 use crate::input::{self, Control, InputEvent};
 use crate::ledger::{Ledger, LedgerError};
-use crate::loader::{self, FrameStore};
+use crate::loader::{self, FrameStore, LoadError, Prepared};
 use crate::notify::Notifier;
 use crate::output::headless::HeadlessOutput;
 use crate::output::{FrameRef, Output, OutputError};
-use crate::player::{Clock, Command, Event, Look, Player, PlayerSettings, State, SystemClock};
+use crate::player::{Command, Event, Look, Player, PlayerSettings, State};
 use crate::show::{Show, mix_linear};
+
+/// After a ledger fault (a lock held too long, an I/O error), light is tried again this
+/// long later: a transient fault must not leave an unattended stage dark for good.
+pub const LEDGER_RETRY_MS: u64 = 30_000;
+/// A wall-clock step larger than this (ms) is logged as an event.
+const CLOCK_STEP_REPORT_MS: i64 = 2_000;
 
 #[derive(Debug, Error)]
 pub enum RunError {
@@ -34,15 +44,14 @@ pub enum RunError {
     Socket { path: PathBuf, source: std::io::Error },
     #[error("input: {0}")]
     Input(String),
+    #[error(
+        "systemd's watchdog timeout ({timeout_ms} ms) is longer than the exposure lease slack covers \
+         ({max_ms} ms = ledger.renew_ahead_ms {renew_ahead_ms} less {kill_ms} ms from kill to dark): a stalled \
+         appliance could keep light on unpaid; lower WatchdogSec or raise renew_ahead_ms"
+    )]
+    Watchdog { timeout_ms: u64, max_ms: u64, renew_ahead_ms: u64, kill_ms: u64 },
     #[error("event loop: {0}")]
     Io(#[from] std::io::Error),
-}
-
-/// Microseconds of CLOCK_MONOTONIC (log timestamps comparable with DRM flip events).
-fn monotonic_us() -> u64 {
-    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
-        .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
-        .unwrap_or(0)
 }
 
 /// Checks that the state directory exists and is readable and writable.
@@ -85,20 +94,40 @@ pub fn open_output(config: &Config, inputs: &input::InputSender) -> Result<Box<d
     Ok(out)
 }
 
+/// A reload in progress: verification on a worker thread, then activation between showings.
+#[derive(Default)]
+struct Reload {
+    /// A worker is verifying a bundle.
+    in_flight: bool,
+    /// Another reload was asked for while one was in flight.
+    again: bool,
+    /// Operators waiting for the outcome (control socket, stdin).
+    replies: Vec<tokio::sync::oneshot::Sender<String>>,
+    /// Verified, waiting for the current showing to end.
+    parked: Option<Prepared>,
+}
+
 /// Everything the loop owns.
 pub struct App {
     config: Config,
-    clock: SystemClock,
+    clock: Box<dyn Clock>,
     ledger: Ledger,
     output: Box<dyn Output>,
     player: Player,
     store: Option<FrameStore>,
-    /// Black frames (allocated when first needed).
-    black: Option<Arc<Vec<Vec<u8>>>>,
+    /// Zeros for black frames, one buffer for every projector (allocated when first needed).
+    black: Option<Arc<Vec<u8>>>,
     /// Cross-fade buffers, kept only while fading.
     fade: Vec<Vec<u8>>,
     notifier: Notifier,
     last_status: String,
+    reload: Reload,
+    /// Verified bundles (or why not) from reload workers.
+    prepared_tx: mpsc::Sender<Result<Prepared, LoadError>>,
+    /// When light is tried again after a ledger fault (monotonic ms).
+    ledger_retry_ms: Option<u64>,
+    /// The wall clock's distance from ledger time when last reported.
+    reported_skew_ms: i64,
 }
 
 impl std::fmt::Debug for App {
@@ -121,6 +150,19 @@ impl App {
         } else {
             self.player.settle(self.now(), &mut self.ledger);
             self.report_status();
+        }
+        self.watch_ledger_fault();
+    }
+
+    /// Schedules a retry after a ledger fault; forgets it once the player left the fault.
+    fn watch_ledger_fault(&mut self) {
+        match self.player.state() {
+            State::Fault { reason } if reason.starts_with("ledger:") => {
+                if self.ledger_retry_ms.is_none() {
+                    self.ledger_retry_ms = Some(self.now().mono_ms + LEDGER_RETRY_MS);
+                }
+            }
+            _ => self.ledger_retry_ms = None,
         }
     }
 
@@ -152,19 +194,24 @@ impl App {
                     self.fade = Vec::new();
                     let frames = self.frames(look)?;
                     let show = self.show()?;
-                    let refs = refs(&show, &frames);
+                    let refs = refs(&show, |k| frames.get(k));
                     self.output.show(&refs).map_err(|e| e.to_string())?;
                 }
                 Command::Fade { from, to, t } => {
                     let show = self.show()?;
                     let (a, b) = (self.frames(from)?, self.frames(to)?);
-                    if self.fade.len() != a.len() {
-                        self.fade = a.iter().map(|f| vec![0u8; f.len()]).collect();
+                    if self.fade.len() != show.projectors.len() {
+                        self.fade = show
+                            .projectors
+                            .iter()
+                            .map(|&(w, h)| vec![0u8; w as usize * h as usize * 4])
+                            .collect();
                     }
                     for (k, out) in self.fade.iter_mut().enumerate() {
-                        mix_linear(&a[k], &b[k], t, &show.responses[k], out);
+                        mix_linear(a.get(k), b.get(k), t, &show.responses[k], out);
                     }
-                    let refs = refs(&show, &self.fade);
+                    let fade = &self.fade;
+                    let refs = refs(&show, |k| &fade[k]);
                     self.output.show(&refs).map_err(|e| e.to_string())?;
                 }
             }
@@ -176,40 +223,123 @@ impl App {
         self.player.show().cloned().ok_or_else(|| "no bundle loaded".to_string())
     }
 
-    fn frames(&mut self, look: Look) -> Result<Arc<Vec<Vec<u8>>>, String> {
+    fn frames(&mut self, look: Look) -> Result<LookFrames, String> {
         let show = self.show()?;
         match look {
             Look::Scene(s) => {
                 let store = self.store.as_mut().ok_or("no bundle loaded")?;
-                store.scene(s).map_err(|e| format!("bundle frames of scene {}: {e}", show.scenes[s].id))
+                let frames = store
+                    .scene(s)
+                    .map_err(|e| format!("bundle frames of scene {}: {e}", show.scenes[s].id))?;
+                Ok(LookFrames::Scene(frames))
             }
             Look::Black | Look::Off => {
-                let black = self.black.get_or_insert_with(|| {
-                    Arc::new(
-                        show.projectors
-                            .iter()
-                            .map(|&(w, h)| vec![0u8; w as usize * h as usize * 4])
-                            .collect(),
-                    )
-                });
-                Ok(black.clone())
+                // One buffer of zeros serves every projector (each takes its own length).
+                let len =
+                    show.projectors.iter().map(|&(w, h)| w as usize * h as usize * 4).max().unwrap_or(0);
+                let black = self.black.get_or_insert_with(|| Arc::new(vec![0u8; len]));
+                Ok(LookFrames::Black(black.clone(), show))
             }
         }
     }
 
-    /// Loads (or reloads) the configured bundle; a refused one leaves the previous in place.
-    fn reload(&mut self) -> Result<(), String> {
+    /// Starts verifying the configured bundle on a worker thread; the outcome comes back as
+    /// a message (`prepared`). `reply` hears it once the bundle is active or refused.
+    fn start_reload(&mut self, reply: Option<tokio::sync::oneshot::Sender<String>>) {
+        self.reload.replies.extend(reply);
+        if self.reload.in_flight {
+            self.reload.again = true;
+            return;
+        }
+        self.reload.in_flight = true;
         let now = self.now();
         let path = self.config.bundle_path();
-        let result = loader::load(
-            &path,
-            &self.config.trust_dir,
-            &mut self.ledger,
+        let trust = self.config.trust_dir.clone();
+        let ledger_path = self.config.state_dir.join(LEDGER_FILE);
+        let offset = self.config.ledger.utc_offset_minutes;
+        let idle = self.config.player.idle;
+        let object = self.config.object_id.clone();
+        let tx = self.prepared_tx.clone();
+        let worker = move || {
+            // Its own read-only connection: the loop's connection stays the loop's.
+            let result =
+                Ledger::open_read_only(&ledger_path, offset).map_err(LoadError::Ledger).and_then(|ledger| {
+                    loader::prepare(&path, &trust, &ledger, now.unix_ms, idle, object.as_deref())
+                });
+            let _ = tx.blocking_send(result);
+        };
+        if let Err(e) = std::thread::Builder::new().name("restage-verify".into()).spawn(worker) {
+            self.reload.in_flight = false;
+            let msg = self.refused(format!("cannot start verifying the bundle: {e}"));
+            self.answer_reload(format!("error: {msg}"));
+        }
+    }
+
+    /// Verifies and activates the configured bundle on this thread (at start, before any
+    /// light, when nothing else needs the loop).
+    fn load_now(&mut self) -> Result<(), String> {
+        let now = self.now();
+        let c = &self.config;
+        let prepared = loader::prepare(
+            &c.bundle_path(),
+            &c.trust_dir,
+            &self.ledger,
             now.unix_ms,
-            self.config.player.idle,
-            |show| self.output.set_modes(&show.projectors).map_err(|e| e.to_string()),
+            c.player.idle,
+            c.object_id.as_deref(),
         );
+        match prepared {
+            Ok(p) => {
+                self.reload.parked = Some(p);
+                self.activate_parked().unwrap_or(Ok(()))
+            }
+            Err(e) => Err(self.refused(e.to_string())),
+        }
+    }
+
+    /// A worker finished verifying.
+    fn prepared(&mut self, result: Result<Prepared, LoadError>) {
+        self.reload.in_flight = false;
         match result {
+            Ok(p) => {
+                self.reload.parked = Some(p);
+                self.activate_parked();
+            }
+            Err(e) => {
+                let msg = self.refused(e.to_string());
+                self.answer_reload(format!("error: {msg}"));
+            }
+        }
+        if std::mem::take(&mut self.reload.again) {
+            self.start_reload(None);
+        }
+    }
+
+    /// Makes the parked bundle active unless a showing is on (it then waits for the showing
+    /// to end: a reload never cuts, extends or restarts a showing). `None`: nothing done.
+    fn activate_parked(&mut self) -> Option<Result<(), String>> {
+        if matches!(self.player.state(), State::Showing { .. } | State::Ending { .. }) {
+            return None;
+        }
+        let mut prepared = self.reload.parked.take()?;
+        // The old bundle's frames go first (they are read again if this one is refused), so
+        // two bundles' frames are never in memory at once.
+        if let Some(store) = self.store.as_mut() {
+            store.release();
+        }
+        if let Err(e) = prepared.preload() {
+            let msg = self.refused(e.to_string());
+            self.answer_reload(format!("error: {msg}"));
+            return Some(Err(msg));
+        }
+        let now = self.now();
+        let path = self.config.bundle_path();
+        let object = self.config.object_id.clone();
+        let output = &mut self.output;
+        let result = loader::activate(prepared, &mut self.ledger, now.unix_ms, object.as_deref(), |show| {
+            output.set_modes(&show.projectors).map_err(|e| e.to_string())
+        });
+        let outcome = match result {
             Ok(loaded) => {
                 let _ = self.ledger.log_event(
                     now.unix_ms,
@@ -224,9 +354,21 @@ impl App {
                 self.black = None;
                 self.store = Some(loaded.store);
                 self.step(Event::Load(loaded.show));
+                self.answer_reload(format!("ok {}", self.player.state().name()));
                 Ok(())
             }
-            Err(e) => Err(self.refused(e.to_string())),
+            Err(e) => {
+                let msg = self.refused(e.to_string());
+                self.answer_reload(format!("error: {msg}"));
+                Err(msg)
+            }
+        };
+        Some(outcome)
+    }
+
+    fn answer_reload(&mut self, answer: String) {
+        for r in self.reload.replies.drain(..) {
+            let _ = r.send(answer.clone());
         }
     }
 
@@ -262,6 +404,9 @@ impl App {
         let v = serde_json::json!({
             "state": state,
             "detail": detail,
+            "ledger_time_ms": now.unix_ms,
+            "wall_skew_ms": self.clock.wall_skew_ms(),
+            "reload_pending": self.reload.in_flight || self.reload.parked.is_some(),
             "look": format!("{:?}", self.player.look()),
             "leased_lux": self.player.leased_lux(),
             "bundle": show,
@@ -280,6 +425,21 @@ impl App {
         if s != self.last_status {
             self.notifier.status(&s);
             self.last_status = s;
+        }
+    }
+
+    /// Reports a wall-clock step (ledger time does not follow it; see `clock`).
+    fn watch_clock(&mut self) {
+        let skew = self.clock.wall_skew_ms();
+        if (skew - self.reported_skew_ms).abs() > CLOCK_STEP_REPORT_MS {
+            let detail = format!(
+                "the wall clock is {:+.1} s from ledger time (was {:+.1} s); ledger time is kept",
+                skew as f64 / 1000.0,
+                self.reported_skew_ms as f64 / 1000.0
+            );
+            tracing::warn!("{detail}");
+            let _ = self.ledger.log_event(self.now().unix_ms, "clock", &detail);
+            self.reported_skew_ms = skew;
         }
     }
 
@@ -302,10 +462,11 @@ impl App {
                         self.step(Event::Stop);
                         "ok dark".to_string()
                     }
-                    Control::Reload => match self.reload() {
-                        Ok(()) => format!("ok {}", self.player.state().name()),
-                        Err(e) => format!("error: {e}"),
-                    },
+                    Control::Reload => {
+                        // Answered when the bundle is active or refused.
+                        self.start_reload(reply);
+                        return true;
+                    }
                     Control::Status => self.status_json(),
                 };
                 if let Some(r) = reply {
@@ -332,10 +493,8 @@ impl App {
             .and_then(|s| s.expires_unix_ms)
             .filter(|_| !matches!(self.player.state(), State::Dark { .. }))
             .map(|e| (e - now.unix_ms).max(0) as u64);
-        match (tick, expiry) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        }
+        let retry = self.ledger_retry_ms.map(|r| r.saturating_sub(now.mono_ms));
+        [tick, expiry, retry].into_iter().flatten().min()
     }
 
     fn tick(&mut self) {
@@ -351,6 +510,15 @@ impl App {
             self.step(Event::Unload(msg));
             return;
         }
+        if let Some(at) = self.ledger_retry_ms
+            && now.mono_ms >= at
+            && let Some(show) = self.player.show().cloned()
+        {
+            tracing::info!("retrying light after a ledger fault");
+            self.ledger_retry_ms = None;
+            self.step(Event::Load(show));
+            return;
+        }
         self.step(Event::Tick);
     }
 
@@ -362,11 +530,30 @@ impl App {
     }
 }
 
-fn refs<'a>(show: &Show, frames: &'a [Vec<u8>]) -> Vec<FrameRef<'a>> {
-    frames
+/// A look's frames: a scene's from the store, or black from one shared buffer of zeros.
+enum LookFrames {
+    Scene(Arc<Vec<Vec<u8>>>),
+    Black(Arc<Vec<u8>>, Arc<Show>),
+}
+
+impl LookFrames {
+    /// Projector `k`'s frame.
+    fn get(&self, k: usize) -> &[u8] {
+        match self {
+            LookFrames::Scene(f) => &f[k],
+            LookFrames::Black(zeros, show) => {
+                let (w, h) = show.projectors[k];
+                &zeros[..w as usize * h as usize * 4]
+            }
+        }
+    }
+}
+
+fn refs<'a>(show: &Show, frame: impl Fn(usize) -> &'a [u8]) -> Vec<FrameRef<'a>> {
+    show.projectors
         .iter()
-        .zip(&show.projectors)
-        .map(|(f, &(width, height))| FrameRef { width, height, xrgb: f })
+        .enumerate()
+        .map(|(k, &(width, height))| FrameRef { width, height, xrgb: frame(k) })
         .collect()
 }
 
@@ -376,8 +563,14 @@ pub fn run_blocking(config: Config) -> Result<(), RunError> {
     rt.block_on(run(config))
 }
 
-/// Runs the appliance until SIGTERM/SIGINT (or the development window closes).
+/// Runs the appliance on the machine's clocks until SIGTERM/SIGINT (or the development window
+/// closes).
 pub async fn run(config: Config) -> Result<(), RunError> {
+    run_with(config, SystemTime).await
+}
+
+/// Runs the appliance with `time` as its clocks (tests step the wall clock through this).
+pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Result<(), RunError> {
     // A file-size limit (or quota) must give write errors, not kill the process with the
     // projectors lit: handle SIGXFSZ (25 on Linux) instead of taking its default action.
     let _xfsz = signal(SignalKind::from_raw(25))?;
@@ -389,9 +582,35 @@ pub async fn run(config: Config) -> Result<(), RunError> {
     // Outputs first, blanked: whatever fails next, the projectors are dark.
     let (tx, mut rx) = mpsc::channel(input::CHANNEL_CAPACITY);
     let output = open_output(&config, &tx)?;
+    let notifier = Notifier::from_env();
+    if let Some(t) = notifier.watchdog_timeout() {
+        let (timeout_ms, max_ms) = (t.as_millis() as u64, config.ledger.max_watchdog_ms());
+        if timeout_ms > max_ms {
+            return Err(RunError::Watchdog {
+                timeout_ms,
+                max_ms,
+                renew_ahead_ms: config.ledger.renew_ahead_ms,
+                kill_ms: crate::config::KILL_TO_DARK_MS,
+            });
+        }
+    }
     check_state_dir(&config.state_dir)?;
-    let ledger = Ledger::open(&config.state_dir.join(LEDGER_FILE), config.ledger.utc_offset_minutes)?;
+    let mut ledger = Ledger::open_stage(&config.state_dir, config.ledger.utc_offset_minutes)?;
     ledger.integrity_check()?;
+    ledger.set_busy_timeout(config.ledger.busy_timeout_ms)?;
+    let wall_ms = time.wall_ms();
+    let clock = LedgerClock::new(time, ledger.high_water_ms()?);
+    let (anchor_ms, anchor_boot_ms) = clock.anchor();
+    ledger.record_run(anchor_ms, anchor_boot_ms, wall_ms)?;
+    if anchor_ms > wall_ms + CLOCK_STEP_REPORT_MS {
+        let detail = format!(
+            "the wall clock reads {:.1} s before the ledger's last recorded time; ledger time continues from there",
+            (anchor_ms - wall_ms) as f64 / 1000.0
+        );
+        tracing::warn!("{detail}");
+        ledger.log_event(anchor_ms, "clock", &detail)?;
+    }
+    tracing::info!(ledger_ms = anchor_ms, boot_ms = anchor_boot_ms, "ledger clock anchored");
     start_inputs(&config, &tx)?;
 
     let p = &config.player;
@@ -403,11 +622,13 @@ pub async fn run(config: Config) -> Result<(), RunError> {
         cooldown_ms: p.cooldown_ms,
         reserve_ms: config.ledger.reserve_ms,
         renew_ahead_ms: config.ledger.renew_ahead_ms,
+        light_off_latency_ms: config.ledger.light_off_latency_ms,
     };
-    let notifier = Notifier::from_env();
     let watchdog = notifier.watchdog_interval();
+    let (prepared_tx, mut prepared_rx) = mpsc::channel(4);
+    let reported_skew_ms = clock.wall_skew_ms();
     let mut app = App {
-        clock: SystemClock::new(),
+        clock: Box::new(clock),
         ledger,
         output,
         player: Player::new(settings),
@@ -417,8 +638,12 @@ pub async fn run(config: Config) -> Result<(), RunError> {
         notifier,
         last_status: String::new(),
         config,
+        reload: Reload::default(),
+        prepared_tx,
+        ledger_retry_ms: None,
+        reported_skew_ms,
     };
-    if let Err(e) = app.reload() {
+    if let Err(e) = app.load_now() {
         tracing::warn!("starting dark: {e}");
     }
     app.notifier.ready(&app.last_status.clone());
@@ -442,11 +667,17 @@ pub async fn run(config: Config) -> Result<(), RunError> {
                 Some(e) => if !app.input(e) { app.shutdown(); break; },
                 None => { app.shutdown(); break; }
             },
+            Some(result) = prepared_rx.recv() => app.prepared(result),
             _ = sleep => app.tick(),
             _ = term.recv() => { app.shutdown(); break; }
             _ = int.recv() => { app.shutdown(); break; }
-            _ = hup.recv() => { let _ = app.reload(); }
+            _ = hup.recv() => app.start_reload(None),
         }
+        // A bundle verified during a showing goes in once it has ended.
+        if app.reload.parked.is_some() {
+            app.activate_parked();
+        }
+        app.watch_clock();
         if let Some(w) = watchdog
             && last_ping.elapsed() >= w
         {

@@ -90,9 +90,9 @@ fn full_disk_faults_to_dark_with_the_reason() {
     let sock = stage.path("control.sock");
     // Renewing often makes the ledger's WAL grow past the limit within a second or two.
     let config =
-        stage.config("", "reserve_ms = 200\nrenew_ahead_ms = 150", &format!("control_socket = {sock:?}"));
+        stage.config("", "reserve_ms = 2500\nrenew_ahead_ms = 2000", &format!("control_socket = {sock:?}"));
     let mut child = Command::new("prlimit")
-        .arg("--fsize=98304")
+        .arg("--fsize=196608")
         .arg("--")
         .arg(BIN)
         .args(["run", "--config"])

@@ -2,8 +2,10 @@
 //! and measurements. No display needed.
 //!
 //! Layout: `DIR/log.tsv`, one line per output change, appended with a single write so a
-//! killed process never leaves half a line: `UNIX_US<TAB>show<TAB>FILE[<TAB>FILE...]` (one
-//! frame file per projector) or `UNIX_US<TAB>blank`. Frame files are
+//! killed process never leaves half a line: `UNIX_US<TAB>BOOT_US<TAB>show<TAB>FILE[<TAB>FILE...]`
+//! (one frame file per projector) or `UNIX_US<TAB>BOOT_US<TAB>blank`. `BOOT_US` is the
+//! kernel's CLOCK_BOOTTIME, read here and not through the appliance's injected clock, so a
+//! test can judge the ledger's timeline against an independent one. Frame files are
 //! `DIR/frames/<blake3>-<W>x<H>.xrgb` (raw XRGB8888, written once per distinct content).
 
 use std::fs::{File, OpenOptions};
@@ -45,8 +47,13 @@ impl HeadlessOutput {
     }
 }
 
-fn unix_us() -> u128 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map(|d| d.as_micros()).unwrap_or(0)
+/// `UNIX_US<TAB>BOOT_US`, now.
+fn stamp() -> String {
+    let unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map(|d| d.as_micros())
+        .unwrap_or(0);
+    format!("{unix}\t{}", crate::clock::boot_us())
 }
 
 impl Output for HeadlessOutput {
@@ -76,11 +83,11 @@ impl Output for HeadlessOutput {
             line.push_str(&name);
         }
         // The time is taken when the frame is "on screen": after its file exists.
-        self.append(format!("{}\tshow{line}\n", unix_us()))
+        self.append(format!("{}\tshow{line}\n", stamp()))
     }
 
     fn blank(&mut self) -> Result<(), OutputError> {
-        self.append(format!("{}\tblank\n", unix_us()))
+        self.append(format!("{}\tblank\n", stamp()))
     }
 }
 
@@ -88,6 +95,8 @@ impl Output for HeadlessOutput {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Record {
     pub unix_us: u128,
+    /// CLOCK_BOOTTIME, microseconds.
+    pub boot_us: u64,
     /// Frame file names (one per projector); empty for a blank.
     pub frames: Vec<String>,
 }
@@ -98,10 +107,10 @@ pub fn read_log(dir: &Path) -> std::io::Result<Vec<Record>> {
     let mut out = Vec::new();
     for line in text.split_inclusive('\n').filter(|l| l.ends_with('\n')) {
         let mut parts = line.trim_end().split('\t');
-        let (Some(t), Some(kind)) = (parts.next(), parts.next()) else { continue };
-        let Ok(unix_us) = t.parse() else { continue };
+        let (Some(t), Some(b), Some(kind)) = (parts.next(), parts.next(), parts.next()) else { continue };
+        let (Ok(unix_us), Ok(boot_us)) = (t.parse(), b.parse()) else { continue };
         let frames = if kind == "show" { parts.map(String::from).collect() } else { Vec::new() };
-        out.push(Record { unix_us, frames });
+        out.push(Record { unix_us, boot_us, frames });
     }
     Ok(out)
 }

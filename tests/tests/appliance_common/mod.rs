@@ -10,6 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
+use restage_appliance::ledger::Ledger;
 use restage_appliance::output::headless::{Record, read_log};
 use restage_shared::bundle::example::{ExampleSpec, example_certificate, example_frame, example_info};
 use restage_shared::bundle::{BundleWriter, SceneKind};
@@ -43,8 +44,18 @@ impl Stage {
         }
         let key = signing_key_from_seed([7; 32]);
         std::fs::write(dir.path().join("trust/test.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
-        let mut info = example_info(&spec);
-        info.policy = ExposurePolicy {
+        let light = example_info(&spec).light;
+        let cert = example_certificate(&spec);
+        let stage = Stage { dir, spec, light, cert };
+        stage.write_bundle(&stage.spec, OBJECT, &stage.path("state/active.bundle"));
+        stage
+    }
+
+    /// Writes a bundle of `spec` for `object`, signed with the trusted key: at least three
+    /// scenes (the first the original, the others restorations), idle = the original scene,
+    /// 1 s showings, no cooldown, large budgets.
+    pub fn write_bundle(&self, spec: &ExampleSpec, object: &str, path: &Path) {
+        let policy = ExposurePolicy {
             max_showing_s: 1,
             cooldown_s: 0,
             daily_budget_lxh: 1e6,
@@ -52,11 +63,18 @@ impl Stage {
             warn_at: vec![0.75, 0.9],
             idle: IdleMode::Scene("original".into()),
         };
-        let light = info.light.clone();
-        let cert = example_certificate(&spec);
-        let mut w = BundleWriter::new(info, cert.clone());
-        for s in 0..3 {
-            let frames = (0..spec.projectors).map(|k| example_frame(&spec, s, k)).collect();
+        self.write_bundle_with(spec, object, path, policy);
+    }
+
+    /// `write_bundle` with another exposure policy.
+    pub fn write_bundle_with(&self, spec: &ExampleSpec, object: &str, path: &Path, policy: ExposurePolicy) {
+        let key = signing_key_from_seed([7; 32]);
+        let mut info = example_info(spec);
+        info.object.id = object.into();
+        info.policy = policy;
+        let mut w = BundleWriter::new(info, example_certificate(spec));
+        for s in 0..spec.scenes.max(3) {
+            let frames = (0..spec.projectors).map(|k| example_frame(spec, s, k)).collect();
             let (id, kind) = if s == 0 {
                 ("original".to_string(), SceneKind::Original)
             } else {
@@ -64,9 +82,10 @@ impl Stage {
             };
             w.add_scene(&id, &id, kind, frames).unwrap();
         }
-        let f = std::fs::File::create(dir.path().join("state/active.bundle")).unwrap();
-        w.write(&key, f).unwrap();
-        Stage { dir, spec, light, cert }
+        // Written beside, then renamed: a running appliance never reads half a file.
+        let tmp = path.with_extension("tmp");
+        w.write(&key, std::fs::File::create(&tmp).unwrap()).unwrap();
+        std::fs::rename(&tmp, path).unwrap();
     }
 
     pub fn path(&self, p: &str) -> PathBuf {
@@ -107,12 +126,13 @@ impl Stage {
         read_log(&self.path("rec")).unwrap_or_default()
     }
 
-    /// Marks "dark from now" in the recorder log (after the test killed the process). A kill
-    /// that came before the recorder wrote its first line leaves no log yet: create it.
-    pub fn mark_dark(&self, unix_us: u128) {
+    /// Marks "dark from now" in the recorder log (after the test killed the process), with
+    /// the test's own reading of the clocks. A kill that came before the recorder wrote its
+    /// first line leaves no log yet: create it.
+    pub fn mark_dark(&self) {
         let mut f =
             std::fs::OpenOptions::new().create(true).append(true).open(self.path("rec/log.tsv")).unwrap();
-        f.write_all(format!("{unix_us}\tblank\n").as_bytes()).unwrap();
+        f.write_all(format!("{}\t{}\tblank\n", unix_us(), boot_us()).as_bytes()).unwrap();
     }
 
     /// Peak lux of a recorded frame set, by the shared crate's bound check on the frames the
@@ -137,9 +157,18 @@ impl Stage {
 
     /// Every lit stretch the recorder saw must be covered, at every instant, by ledger rows
     /// paying at least its lux (reserved before it began; committed after it ended, or
-    /// handed over to a new reservation first). Returns how many stretches were checked.
-    pub fn assert_every_lit_stretch_paid(&self, rows: &[restage_appliance::ledger::ExposureRow]) -> usize {
-        let recs = self.records();
+    /// handed over to a new reservation first). The recorder's times are CLOCK_BOOTTIME,
+    /// read by the kernel for the recorder and for this test, never through the appliance's
+    /// clock; each run's anchor in the ledger maps them onto ledger time. Returns how many
+    /// stretches were checked.
+    pub fn assert_every_lit_stretch_paid(&self, ledger: &Ledger) -> usize {
+        self.assert_paid(ledger, &self.records())
+    }
+
+    /// `assert_every_lit_stretch_paid` over `recs` (a prefix of the records, say).
+    pub fn assert_paid(&self, ledger: &Ledger, recs: &[Record]) -> usize {
+        let rows = ledger.exposure_rows(OBJECT).unwrap();
+        let runs = ledger.runs().unwrap();
         let mut cache = HashMap::new();
         let mut checked = 0;
         for w in recs.windows(2) {
@@ -147,7 +176,10 @@ impl Stage {
             if lux <= 0.0 {
                 continue;
             }
-            let (from_us, to_us) = (w[0].unix_us as i128, w[1].unix_us as i128);
+            let Some(from_us) = ledger_us(&runs, w[0].boot_us) else {
+                panic!("light at boot {} us before any run was recorded", w[0].boot_us)
+            };
+            let to_us = from_us + (w[1].boot_us as i128 - w[0].boot_us as i128);
             let mut paying: Vec<(i128, i128)> = rows
                 .iter()
                 .filter(|r| r.lux >= lux * (1.0 - 1e-9))
@@ -164,8 +196,10 @@ impl Stage {
             }
             assert!(
                 covered >= to_us,
-                "light of {lux} lx from {from_us} to {to_us} us ({:?}) is paid only until {covered} us",
-                w[0].frames
+                "light of {lux} lx from {from_us} to {to_us} us (ledger time; {:?}) is paid only until {covered} us \
+                 ({} us unpaid)",
+                w[0].frames,
+                to_us - covered
             );
             checked += 1;
         }
@@ -178,11 +212,54 @@ impl Stage {
         let mut cache = HashMap::new();
         let mut lux_us = 0.0;
         for w in recs.windows(2) {
-            let dt = w[1].unix_us.saturating_sub(w[0].unix_us) as f64;
+            let dt = w[1].boot_us.saturating_sub(w[0].boot_us) as f64;
             lux_us += self.lux_of(&w[0].frames, &mut cache) * dt;
         }
         lux_us / 3.6e9
     }
+
+    /// Lit stretches showing anything but the idle frames (restorations and their fades), in
+    /// ms, by the recorder's clock. `idle`: the idle scene's frame files, if it is lit.
+    pub fn showing_stretches_ms(&self, idle: Option<&[String]>) -> Vec<f64> {
+        let (mut out, mut since) = (Vec::new(), None);
+        for r in self.records() {
+            if !r.frames.is_empty() && idle.is_none_or(|i| r.frames != i) {
+                since.get_or_insert(r.boot_us);
+            } else if let Some(s) = since.take() {
+                out.push((r.boot_us - s) as f64 / 1000.0);
+            }
+        }
+        out
+    }
+
+    /// The first frames the recorder saw lit (the idle scene, where it is lit).
+    pub fn first_lit(&self) -> Vec<String> {
+        self.records().into_iter().find(|r| !r.frames.is_empty()).map(|r| r.frames).unwrap_or_default()
+    }
+
+    /// Peak lux of scene `s` of the stage's bundle (0: the original, the idle scene).
+    pub fn scene_lux(&self, s: usize) -> f64 {
+        let frames: Vec<Vec<u8>> =
+            (0..self.spec.projectors).map(|k| example_frame(&self.spec, s, k)).collect();
+        let refs: Vec<XrgbFrame<'_>> = frames
+            .iter()
+            .map(|b| XrgbFrame { width: self.spec.width, height: self.spec.height, xrgb: b })
+            .collect();
+        max_irradiance(&self.light, &self.cert, &refs).unwrap().lux
+    }
+}
+
+/// Ledger time (us) of a boot-clock instant: the latest run anchored at or before it.
+pub fn ledger_us(runs: &[(i64, u64)], boot_us: u64) -> Option<i128> {
+    runs.iter()
+        .rev()
+        .find(|(_, b)| u128::from(*b) * 1000 <= u128::from(boot_us))
+        .map(|&(l, b)| i128::from(l) * 1000 + (i128::from(boot_us) - i128::from(b) * 1000))
+}
+
+/// Now, CLOCK_BOOTTIME microseconds, read by this process.
+pub fn boot_us() -> u64 {
+    restage_appliance::clock::boot_us()
 }
 
 /// Now, Unix microseconds.
