@@ -5,6 +5,7 @@ pub mod config;
 pub mod input;
 pub mod ledger;
 pub mod loader;
+pub mod memory;
 pub mod notify;
 pub mod output;
 pub mod player;

@@ -42,6 +42,11 @@ pub enum LoadError {
          (by {by}); budgets are kept per object, so set object_id in the configuration to change it"
     )]
     Object { path: PathBuf, object: String, expected: String, by: &'static str },
+    #[error(
+        "bundle {path} refused: it needs up to {need_mb} MiB of memory (frames and certificate), \
+         more than this appliance's limit of {limit_mb} MiB (raise MemoryMax; README, \"Memory\")"
+    )]
+    TooLarge { path: PathBuf, need_mb: u64, limit_mb: u64 },
     #[error("ledger: {0}")]
     Ledger(LedgerError),
 }
@@ -106,6 +111,19 @@ pub fn open_verified(
     ledger: &Ledger,
     now_unix_ms: i64,
 ) -> Result<(VerifiedBundle<File>, String), LoadError> {
+    open_verified_within(path, trust_dir, ledger, now_unix_ms, None)
+}
+
+/// [`open_verified`], refusing before anything large is decoded a bundle whose memory need
+/// ([`crate::memory::need`]) exceeds `memory: (limit bytes, KMS scan-out buffers)`: an
+/// appliance killed for memory would restart into the same bundle for ever.
+pub fn open_verified_within(
+    path: &Path,
+    trust_dir: &Path,
+    ledger: &Ledger,
+    now_unix_ms: i64,
+    memory: Option<(u64, bool)>,
+) -> Result<(VerifiedBundle<File>, String), LoadError> {
     // The one time of this load: validity is judged against it.
     let now_s = now_unix_ms.div_euclid(1000);
     let trust = TrustStore::load_dir(trust_dir)
@@ -114,8 +132,18 @@ pub fn open_verified(
     let refused = |source| LoadError::Refused { path: path.into(), source };
     let last = |object: &str| ledger.accepted_version(object).ok().flatten();
     let opts = VerifyOptions { now_unix_s: now_s, last_accepted: &last, limits: Limits::default() };
-    let bundle =
-        BundleReader::open(file, &trust, &opts).map_err(refused)?.verify(|_| Ok(())).map_err(refused)?;
+    let reader = BundleReader::open(file, &trust, &opts).map_err(refused)?;
+    if let Some((limit, scan_out)) = memory {
+        let need = crate::memory::need_for_manifest(reader.manifest(), scan_out);
+        if need.total_bytes > limit {
+            return Err(LoadError::TooLarge {
+                path: path.into(),
+                need_mb: need.total_bytes >> 20,
+                limit_mb: limit >> 20,
+            });
+        }
+    }
+    let bundle = reader.verify(|_| Ok(())).map_err(refused)?;
     let hash: String = bundle.manifest_hash.iter().map(|b| format!("{b:02x}")).collect();
     ledger
         .check_version(&bundle.manifest.object.id, bundle.manifest.version, &hash)
@@ -164,19 +192,30 @@ impl Prepared {
     }
 }
 
+/// What the configuration says about loading.
+#[derive(Clone, Debug, Default)]
+pub struct LoadOptions {
+    /// The config's idle override.
+    pub idle: Option<IdleMode>,
+    /// The configured object (else the ledger's pin).
+    pub object_id: Option<String>,
+    /// Refuse bundles needing more memory than this (bytes), and whether KMS scan-out
+    /// buffers count.
+    pub memory: Option<(u64, bool)>,
+}
+
 /// Verifies the bundle at `path` and builds what the player needs: the slow half of a load,
 /// which only reads the ledger (anti-rollback record, object pin). Frames stay on disk until
 /// [`Prepared::preload`].
-/// `idle` is the config's idle override, `object_id` the configured object, if any.
 pub fn prepare(
     path: &Path,
     trust_dir: &Path,
     ledger: &Ledger,
     now_unix_ms: i64,
-    idle: Option<IdleMode>,
-    object_id: Option<&str>,
+    opts: &LoadOptions,
 ) -> Result<Prepared, LoadError> {
-    let (bundle, hash) = open_verified(path, trust_dir, ledger, now_unix_ms)?;
+    let (idle, object_id) = (opts.idle, opts.object_id.as_deref());
+    let (bundle, hash) = open_verified_within(path, trust_dir, ledger, now_unix_ms, opts.memory)?;
     check_object(path, ledger, object_id, &bundle.manifest.object.id)?;
     let m = &bundle.manifest;
     let unplayable = |problem: String| LoadError::Unplayable { path: path.into(), problem };
@@ -345,13 +384,12 @@ pub fn load(
     trust_dir: &Path,
     ledger: &mut Ledger,
     now_unix_ms: i64,
-    idle: Option<IdleMode>,
-    object_id: Option<&str>,
+    opts: &LoadOptions,
     playable: impl FnOnce(&Show) -> Result<(), String>,
 ) -> Result<Loaded, LoadError> {
-    let mut prepared = prepare(path, trust_dir, ledger, now_unix_ms, idle, object_id)?;
+    let mut prepared = prepare(path, trust_dir, ledger, now_unix_ms, opts)?;
     prepared.preload()?;
-    activate(prepared, ledger, now_unix_ms, object_id, playable)
+    activate(prepared, ledger, now_unix_ms, opts.object_id.as_deref(), playable)
 }
 
 #[cfg(test)]
@@ -376,9 +414,10 @@ mod tests {
         let (v3, v4) = (write(3), write(4));
         let mut ledger = Ledger::open_in_memory(0).unwrap();
         let now = 1_700_000_100_000;
-        assert!(load(&v3, &trust, &mut ledger, now, None, None, |_| Ok(())).is_ok());
-        let e =
-            load(&v4, &trust, &mut ledger, now, None, None, |_| Err("no 32x24 mode".into())).err().unwrap();
+        assert!(load(&v3, &trust, &mut ledger, now, &LoadOptions::default(), |_| Ok(())).is_ok());
+        let e = load(&v4, &trust, &mut ledger, now, &LoadOptions::default(), |_| Err("no 32x24 mode".into()))
+            .err()
+            .unwrap();
         assert!(
             e.to_string().contains("v4.bundle") && e.to_string().contains("cannot show it: no 32x24 mode"),
             "{e}"
@@ -387,12 +426,30 @@ mod tests {
         // The current, older bundle still loads (no rollback refusal).
         let mut asked = false;
         assert!(
-            load(&v3, &trust, &mut ledger, now, None, None, |_| {
+            load(&v3, &trust, &mut ledger, now, &LoadOptions::default(), |_| {
                 asked = true;
                 Ok(())
             })
             .is_ok()
         );
         assert!(asked);
+    }
+
+    #[test]
+    fn a_bundle_needing_more_memory_than_allowed_is_refused_before_decoding() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = signing_key_from_seed([3; 32]);
+        let trust = dir.path().join("trust");
+        std::fs::create_dir(&trust).unwrap();
+        std::fs::write(trust.join("k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
+        let path = dir.path().join("b.bundle");
+        example_writer(&ExampleSpec::small()).write(&key, File::create(&path).unwrap()).unwrap();
+        let ledger = Ledger::open_in_memory(0).unwrap();
+        let opts = LoadOptions { memory: Some((1 << 20, false)), ..LoadOptions::default() };
+        let e = prepare(&path, &trust, &ledger, 1_700_000_100_000, &opts).unwrap_err();
+        assert!(matches!(e, LoadError::TooLarge { limit_mb: 1, .. }), "{e}");
+        assert!(e.to_string().contains("MemoryMax"), "{e}");
+        let opts = LoadOptions { memory: Some((1 << 30, true)), ..LoadOptions::default() };
+        prepare(&path, &trust, &ledger, 1_700_000_100_000, &opts).unwrap();
     }
 }

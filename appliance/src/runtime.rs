@@ -257,15 +257,13 @@ impl App {
         let trust = self.config.trust_dir.clone();
         let ledger_path = self.config.state_dir.join(LEDGER_FILE);
         let offset = self.config.ledger.utc_offset_minutes;
-        let idle = self.config.player.idle;
-        let object = self.config.object_id.clone();
+        let opts = self.load_options();
         let tx = self.prepared_tx.clone();
         let worker = move || {
             // Its own read-only connection: the loop's connection stays the loop's.
-            let result =
-                Ledger::open_read_only(&ledger_path, offset).map_err(LoadError::Ledger).and_then(|ledger| {
-                    loader::prepare(&path, &trust, &ledger, now.unix_ms, idle, object.as_deref())
-                });
+            let result = Ledger::open_read_only(&ledger_path, offset)
+                .map_err(LoadError::Ledger)
+                .and_then(|ledger| loader::prepare(&path, &trust, &ledger, now.unix_ms, &opts));
             let _ = tx.blocking_send(result);
         };
         if let Err(e) = std::thread::Builder::new().name("restage-verify".into()).spawn(worker) {
@@ -280,20 +278,25 @@ impl App {
     fn load_now(&mut self) -> Result<(), String> {
         let now = self.now();
         let c = &self.config;
-        let prepared = loader::prepare(
-            &c.bundle_path(),
-            &c.trust_dir,
-            &self.ledger,
-            now.unix_ms,
-            c.player.idle,
-            c.object_id.as_deref(),
-        );
+        let prepared =
+            loader::prepare(&c.bundle_path(), &c.trust_dir, &self.ledger, now.unix_ms, &self.load_options());
         match prepared {
             Ok(p) => {
                 self.reload.parked = Some(p);
                 self.activate_parked().unwrap_or(Ok(()))
             }
             Err(e) => Err(self.refused(e.to_string())),
+        }
+    }
+
+    /// The configuration's say on loading; the memory limit is the cgroup's (systemd's
+    /// `MemoryMax`), so a bundle that would get the appliance killed is refused instead.
+    fn load_options(&self) -> loader::LoadOptions {
+        loader::LoadOptions {
+            idle: self.config.player.idle,
+            object_id: self.config.object_id.clone(),
+            memory: crate::memory::cgroup_limit()
+                .map(|l| (l, matches!(self.config.output, OutputConfig::Kms { .. }))),
         }
     }
 
