@@ -1,5 +1,5 @@
 //! The appliance as a real process under an adversary, for `RESTAGE_CRASH_ROUNDS` rounds
-//! (default 80; the README gives a full run's figures): each round starts it, waits for light,
+//! (default 60; the README gives a full run's figures): each round starts it, waits for light,
 //! then at seeded random moments presses (sometimes at 50 per second), stops it with SIGSTOP
 //! (then SIGKILL, as a watchdog would, or SIGCONT past its lease), or holds the ledger's write
 //! lock from another process, and finally kills it with SIGKILL. After every restart the
@@ -25,7 +25,7 @@ use restage_shared::bundle::example::ExampleSpec;
 const WATCHDOG_MS: u64 = 500;
 
 fn rounds() -> usize {
-    std::env::var("RESTAGE_CRASH_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(80)
+    std::env::var("RESTAGE_CRASH_ROUNDS").ok().and_then(|v| v.parse().ok()).unwrap_or(60)
 }
 
 /// Waits until the recorder logged a record after `after` records with light (or `limit`).
