@@ -1,8 +1,9 @@
 //! The appliance as a real process under an adversary, for `RESTAGE_CRASH_ROUNDS` rounds
 //! (default 60; the README gives a full run's figures): each round starts it, waits for light,
 //! then at seeded random moments presses (sometimes at 50 per second), stops it with SIGSTOP
-//! (then SIGKILL, as a watchdog would, or SIGCONT past its lease), or holds the ledger's write
-//! lock from another process, and finally kills it with SIGKILL. After every restart the
+//! (then SIGKILL, as a watchdog would, or SIGCONT past its lease), holds the ledger's write
+//! lock from another process, or asks for a reload during a showing, and finally kills it
+//! with SIGKILL. After every restart the
 //! ledger passes SQLite's integrity check, and every lit instant the recorder saw — timed by
 //! the kernel's boot clock, not the appliance's — is covered by ledger rows paying its lux.
 
@@ -51,6 +52,7 @@ struct Tally {
     stall_kill: usize,
     stall_resume: usize,
     lock: usize,
+    reload: usize,
     lit_at_kill: usize,
 }
 
@@ -74,8 +76,8 @@ fn adversarial_kills_stalls_and_lock_holders_never_under_count() {
         let mut child = stage.spawn(&config);
         let pid = Pid::from_raw(child.id() as i32);
         let mut stdin = child.stdin.take().unwrap();
-        let mut press = || {
-            let _ = stdin.write_all(b"press\n");
+        let press = |s: &mut std::process::ChildStdin| {
+            let _ = s.write_all(b"press\n");
         };
         // Sometimes during start-up; otherwise once the idle scene is lit.
         if rng.gen_bool(0.1) {
@@ -83,11 +85,11 @@ fn adversarial_kills_stalls_and_lock_holders_never_under_count() {
         } else {
             wait_for_light(&stage, before, Duration::from_secs(20));
         }
-        match rng.gen_range(0..5) {
+        match rng.gen_range(0..6) {
             0 => {
                 t.plain += 1;
                 for _ in 0..rng.gen_range(0..4) {
-                    press();
+                    press(&mut stdin);
                     sleep_ms(rng.gen_range(0..250));
                 }
                 sleep_ms(rng.gen_range(0..400));
@@ -95,20 +97,29 @@ fn adversarial_kills_stalls_and_lock_holders_never_under_count() {
             1 => {
                 t.flood += 1;
                 for _ in 0..rng.gen_range(5..60) {
-                    press();
+                    press(&mut stdin);
                     sleep_ms(20);
                 }
             }
             2 => {
                 t.stall_kill += 1;
-                press();
+                press(&mut stdin);
                 sleep_ms(rng.gen_range(0..350));
                 kill(pid, Signal::SIGSTOP).unwrap();
                 sleep_ms(rng.gen_range(50..=WATCHDOG_MS));
             }
+            4 => {
+                // A reload (operator, SIGHUP) during a showing: verified on a worker, swapped in
+                // after the showing; killed at a random moment on the way.
+                t.reload += 1;
+                press(&mut stdin);
+                sleep_ms(rng.gen_range(0..150));
+                let _ = stdin.write_all(b"reload\n");
+                sleep_ms(rng.gen_range(0..600));
+            }
             3 => {
                 t.stall_resume += 1;
-                press();
+                press(&mut stdin);
                 sleep_ms(rng.gen_range(0..350));
                 kill(pid, Signal::SIGSTOP).unwrap();
                 // Longer than a lease and than a showing.
@@ -118,7 +129,7 @@ fn adversarial_kills_stalls_and_lock_holders_never_under_count() {
             }
             _ => {
                 t.lock += 1;
-                press();
+                press(&mut stdin);
                 sleep_ms(rng.gen_range(0..200));
                 // Another process holds the ledger's write lock (an operator's sqlite3, a
                 // backup tool), longer than the lease's slack: the appliance must go dark
