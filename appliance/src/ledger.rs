@@ -418,7 +418,7 @@ impl Ledger {
             // WAL: readers (status) never block the player; FULL: a committed reservation
             // survives a power cut.
             conn.pragma_update(None, "journal_mode", "WAL").map_err(sql)?;
-            conn.pragma_update(None, "synchronous", "FULL").map_err(sql)?;
+            conn.pragma_update(None, "synchronous", synchronous()).map_err(sql)?;
         }
         let mut ledger = Ledger { conn, path: path.into(), utc_offset_minutes, active: None };
         ledger.migrate(write)?;
@@ -892,6 +892,18 @@ fn write_guard(guard: &Path, id: &str) -> Result<(), LedgerError> {
         std::fs::File::open(dir)?.sync_all()
     };
     write().map_err(err)
+}
+
+/// `FULL`; only a debug build started with `RESTAGE_TEST_ONLY_LEDGER_SYNCHRONOUS_OFF=1` uses
+/// `OFF`, for tests/tests/power_qemu.rs to show that its power-cut check can fail.
+fn synchronous() -> &'static str {
+    if cfg!(debug_assertions)
+        && std::env::var_os("RESTAGE_TEST_ONLY_LEDGER_SYNCHRONOUS_OFF").is_some_and(|v| v == "1")
+    {
+        tracing::warn!("RESTAGE_TEST_ONLY_LEDGER_SYNCHRONOUS_OFF=1 (test only): ledger synchronous=OFF");
+        return "OFF";
+    }
+    "FULL"
 }
 
 /// (year, month, day) of a day count since 1970-01-01 (H. Hinnant's civil_from_days).

@@ -14,40 +14,28 @@
 //! Needs `qemu-system-x86_64` and the tools of `tests/qemu/prepare.sh` (apt packages
 //! `qemu-system-x86 busybox-static cpio kmod xz-utils`); `RESTAGE_SKIP_QEMU=1` skips it.
 
-use std::io::{BufRead, BufReader, Read, Write};
+mod qemu_common;
+
+use std::io::{BufRead, BufReader, Write};
 use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
-use std::process::{Child, ChildStdin, Command, Stdio};
-use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+use qemu_common::{Boot, H, HEADS, MACHINE, W, field, spec, stamp_s};
 use restage_appliance::output::kms::xrgb8888_to_rgb8;
-use restage_shared::bundle::example::{ExampleSpec, example_certificate, example_frame, example_info};
-use restage_shared::bundle::{BundleWriter, SceneKind};
-use restage_shared::keys::{public_key_to_pem, signing_key_from_seed};
+use restage_shared::bundle::example::{ExampleSpec, example_frame};
 use restage_shared::policy::{ExposurePolicy, IdleMode};
 
-const W: u32 = 640;
-const H: u32 = 480;
-const HEADS: usize = 3;
 /// Length of a showing (the exposure timer), seconds.
 const SHOWING_S: u32 = 3;
 /// Width of a bundle no head can show (no standard mode is 624 wide).
 const BAD_W: u32 = 624;
-const PACKAGES: &str = "qemu-system-x86 busybox-static cpio kmod xz-utils";
-
-fn spec() -> ExampleSpec {
-    ExampleSpec { projectors: HEADS, scenes: 2, width: W, height: H, step: 16, ..ExampleSpec::small() }
-}
 
 /// Trust key, bundle (original + one restoration, short showings) and config for the guest.
 fn payload(dir: &Path, atomic: bool) {
-    for d in ["trust", "state"] {
-        std::fs::create_dir_all(dir.join(d)).unwrap();
-    }
+    qemu_common::write_trust(&dir.join("trust"));
+    std::fs::create_dir_all(dir.join("state")).unwrap();
     let spec = spec();
-    let key = signing_key_from_seed([7; 32]);
-    std::fs::write(dir.join("trust/test.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
     let policy = ExposurePolicy {
         max_showing_s: SHOWING_S,
         cooldown_s: 0,
@@ -58,19 +46,8 @@ fn payload(dir: &Path, atomic: bool) {
     };
     // The bundle played, and a newer one of a frame size no head offers.
     let odd = ExampleSpec { width: BAD_W, version: spec.version + 1, ..spec.clone() };
-    for (spec, file) in [(&spec, "state/active.bundle"), (&odd, "bad.bundle")] {
-        let mut info = example_info(spec);
-        info.policy = policy.clone();
-        let mut w = BundleWriter::new(info, example_certificate(spec));
-        for (s, (id, kind)) in [("original", SceneKind::Original), ("restored-1", SceneKind::Restoration)]
-            .into_iter()
-            .enumerate()
-        {
-            let frames = (0..HEADS).map(|k| example_frame(spec, s, k)).collect();
-            w.add_scene(id, id, kind, frames).unwrap();
-        }
-        w.write(&key, std::fs::File::create(dir.join(file)).unwrap()).unwrap();
-    }
+    qemu_common::write_bundle(&dir.join("state/active.bundle"), &spec, &policy);
+    qemu_common::write_bundle(&dir.join("bad.bundle"), &odd, &policy);
     let config = "trust_dir = \"/restage/trust\"\nstate_dir = \"/var/lib/restage\"\n\
                   [player]\nfade_ms = 300\nfade_fps = 10\nmin_press_interval_ms = 100\n\
                   [output]\nkind = \"kms\"\ncard = \"/dev/dri/card0\"\n\
@@ -78,46 +55,6 @@ fn payload(dir: &Path, atomic: bool) {
                   [inputs.serial]\npath = \"/dev/ttyS1\"\nbaud = 115200\n";
     let config = config.replace("[inputs.serial]", &format!("atomic = {atomic}\n[inputs.serial]"));
     std::fs::write(dir.join("config.toml"), config).unwrap();
-}
-
-/// The guest's console: lines arrive on a channel and are kept for the figures.
-struct Console {
-    stdin: ChildStdin,
-    lines: mpsc::Receiver<String>,
-    seen: Vec<String>,
-}
-
-impl Console {
-    /// Waits for a line containing every one of `parts`; returns it.
-    fn wait_for(&mut self, parts: &[&str], timeout: Duration) -> String {
-        let start = Instant::now();
-        loop {
-            let left = timeout.checked_sub(start.elapsed()).unwrap_or_else(|| {
-                panic!(
-                    "no console line with {parts:?} within {timeout:?}; console:\n{}",
-                    self.seen.join("\n")
-                )
-            });
-            match self.lines.recv_timeout(left) {
-                Ok(line) => {
-                    eprintln!("guest| {line}");
-                    self.seen.push(line.clone());
-                    if parts.iter().all(|p| line.contains(p)) {
-                        return line;
-                    }
-                }
-                Err(mpsc::RecvTimeoutError::Timeout) => {}
-                Err(mpsc::RecvTimeoutError::Disconnected) => {
-                    panic!("QEMU exited while waiting for {parts:?}; console:\n{}", self.seen.join("\n"))
-                }
-            }
-        }
-    }
-
-    fn command(&mut self, cmd: &str) {
-        self.stdin.write_all(format!("{cmd}\n").as_bytes()).unwrap();
-        self.stdin.flush().unwrap();
-    }
 }
 
 /// QMP: one JSON command per line, skipping asynchronous events.
@@ -237,34 +174,6 @@ fn these_heads_show(
     }
 }
 
-/// Seconds since midnight of a tracing line's timestamp (`2026-01-01T12:34:56.789012Z ...`).
-fn stamp_s(line: &str) -> Option<f64> {
-    let t = line.split_whitespace().next()?.split('T').nth(1)?.trim_end_matches('Z');
-    let mut parts = t.split(':');
-    let (h, m, s): (f64, f64, f64) =
-        (parts.next()?.parse().ok()?, parts.next()?.parse().ok()?, parts.next()?.parse().ok()?);
-    Some(h * 3600.0 + m * 60.0 + s)
-}
-
-/// The value of `key=NUMBER` in a tracing line.
-fn field(line: &str, key: &str) -> Option<u64> {
-    let at = line.find(&format!("{key}="))? + key.len() + 1;
-    line[at..].split(|c: char| !c.is_ascii_digit()).next()?.parse().ok()
-}
-
-struct Guest(Child);
-
-impl Drop for Guest {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// One emulated machine at a time (two software-emulated CPUs on a 2-core machine would
-/// slow each other past the showing's length).
-static MACHINE: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
 #[test]
 fn atomic_three_heads_original_restoration_timer_hotplug_second_master_and_black_after_kill() {
     let _one = MACHINE.lock().unwrap_or_else(|e| e.into_inner());
@@ -278,74 +187,31 @@ fn legacy_modeset_three_heads_same_scenario() {
 }
 
 fn scenario(atomic: bool) {
-    if std::env::var("RESTAGE_SKIP_QEMU").is_ok_and(|v| v == "1") {
-        eprintln!("RESTAGE_SKIP_QEMU=1: the emulated three-head test is skipped");
+    if qemu_common::skipped("the emulated three-head test") {
         return;
     }
-    let have_qemu =
-        Command::new("qemu-system-x86_64").arg("--version").output().is_ok_and(|o| o.status.success());
-    assert!(
-        have_qemu,
-        "qemu-system-x86_64 not found: install the apt packages {PACKAGES} (or set RESTAGE_SKIP_QEMU=1 to skip this test)"
-    );
     let t0 = Instant::now();
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     payload(&d.join("payload"), atomic);
-    let bin = restage_tests::appliance_bin();
-    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("qemu/prepare.sh");
-    let prep =
-        Command::new("bash").arg(&script).arg(d.join("vm")).arg(bin).arg(d.join("payload")).output().unwrap();
-    assert!(
-        prep.status.success(),
-        "{} failed (packages needed: {PACKAGES}):\n{}{}",
-        script.display(),
-        String::from_utf8_lossy(&prep.stdout),
-        String::from_utf8_lossy(&prep.stderr)
-    );
-    eprintln!("{}prepared in {:.1} s", String::from_utf8_lossy(&prep.stdout), t0.elapsed().as_secs_f64());
+    let vm = qemu_common::prepare(d, &d.join("payload"), None);
 
     let (qmp_path, serial_path): (PathBuf, PathBuf) = (d.join("qmp.sock"), d.join("button.sock"));
-    let video: Vec<String> = (1..=HEADS).map(|k| format!("video=Virtual-{k}:{W}x{H}@60e")).collect();
     // fbcon=map:9 maps the console to a framebuffer that does not exist: what the README's
     // install section prescribes, so no head shows console text when the appliance is gone.
     // RESTAGE_QEMU_FBCON overrides it (e.g. "fbcon=nodefer") to watch the test catch the
-    // console; RESTAGE_QEMU_ACCEL=kvm uses KVM where /dev/kvm can run a guest.
+    // console.
     let fbcon = std::env::var("RESTAGE_QEMU_FBCON").unwrap_or_else(|_| "fbcon=map:9".into());
-    let accel = std::env::var("RESTAGE_QEMU_ACCEL").unwrap_or_else(|_| "tcg".into());
-    let append = format!("console=ttyS0 quiet loglevel=3 {fbcon} {}", video.join(" "));
-    let mut child = Command::new("qemu-system-x86_64")
-        .args(["-machine", "pc", "-accel", &accel, "-m", "512", "-nodefaults", "-no-reboot"])
-        .args(["-device", "virtio-gpu-pci,max_outputs=3,id=gpu0", "-vga", "none", "-display", "none"])
-        .arg("-kernel")
-        .arg(d.join("vm/vmlinux"))
-        .arg("-initrd")
-        .arg(d.join("vm/initrd.cpio"))
-        .args(["-append", &append, "-serial", "stdio"])
-        .args(["-serial", &format!("unix:{},server=on,wait=off", serial_path.display())])
-        .args(["-qmp", &format!("unix:{},server=on,wait=off", qmp_path.display())])
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit())
-        .spawn()
-        .expect("qemu-system-x86_64 starts");
-    let boot = Instant::now();
-    let stdin = child.stdin.take().unwrap();
-    let stdout = child.stdout.take().unwrap();
-    let _guest = Guest(child);
-    let (tx, lines) = mpsc::channel();
-    std::thread::spawn(move || {
-        let mut r = BufReader::new(stdout);
-        let mut buf = Vec::new();
-        while r.read_until(b'\n', &mut buf).is_ok_and(|n| n > 0) {
-            let text = String::from_utf8_lossy(&buf).replace('\r', "").trim_end().to_string();
-            buf.clear();
-            if tx.send(text).is_err() {
-                return;
-            }
-        }
+    let accel = qemu_common::accel();
+    let (_guest, mut con) = qemu_common::boot(Boot {
+        vm: &vm,
+        append: fbcon,
+        button: serial_path.clone(),
+        qmp: Some(qmp_path.clone()),
+        args: Vec::new(),
+        echo: true,
     });
-    let mut con = Console { stdin, lines, seen: Vec::new() };
+    let boot = Instant::now();
     let mut qmp = Qmp::connect(&qmp_path);
 
     let started = con.wait_for(&["appliance starting"], Duration::from_secs(120));
@@ -370,20 +236,7 @@ fn scenario(atomic: bool) {
         "the original scene after start",
     );
 
-    // The button box: PING until PONG (bytes sent before the guest opens the port are lost).
-    let mut button = UnixStream::connect(&serial_path).expect("serial socket");
-    button.set_read_timeout(Some(Duration::from_millis(300))).unwrap();
-    let start = Instant::now();
-    let mut got = Vec::new();
-    while !String::from_utf8_lossy(&got).contains("PONG") {
-        assert!(start.elapsed() < Duration::from_secs(30), "no PONG from the appliance's serial input");
-        button.write_all(b"PING\n").unwrap();
-        let mut b = [0u8; 64];
-        if let Ok(n) = button.read(&mut b) {
-            got.extend_from_slice(&b[..n]);
-        }
-    }
-
+    let mut button = qemu_common::button(&serial_path);
     button.write_all(b"PRESS\n").unwrap();
     let press = con.wait_for(&["press", "source=\"serial\""], Duration::from_secs(20));
     let flip = con.wait_for(&["page flip complete", "lit=true"], Duration::from_secs(20));

@@ -208,6 +208,24 @@ pub fn xrgb8888_to_rgb8(xrgb: &[u8]) -> Vec<u8> {
     xrgb.chunks_exact(4).flat_map(|p| [p[2], p[1], p[0]]).collect()
 }
 
+/// A short fingerprint of a frame's picture (the R, G, B bytes of every 61st pixel, FNV-1a):
+/// logged with each presented frame so that a test watching the log knows which picture
+/// was lit (tests/tests/power_qemu.rs).
+pub fn frame_fingerprint(xrgb: &[u8]) -> u32 {
+    let mut h: u32 = 0x811c_9dc5;
+    for p in xrgb.chunks_exact(4).step_by(61) {
+        for &b in &p[..3] {
+            h = (h ^ u32::from(b)).wrapping_mul(0x0100_0193);
+        }
+    }
+    h
+}
+
+/// Microseconds of the wall clock (CLOCK_REALTIME), the clock the ledger's times are in.
+pub fn unix_us() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
+}
+
 /// Microseconds of CLOCK_MONOTONIC, the clock of DRM's flip event timestamps.
 pub fn monotonic_us() -> u64 {
     nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
@@ -419,6 +437,17 @@ impl KmsOutput {
                 self.card.map_dumb_buffer(&mut head.bufs[back].db).map_err(ioctl("map dumb buffer"))?;
             copy_to_scanout(frames.map(|f| &f[k]), w, h, map.as_mut(), pitch);
         }
+        let lit =
+            frames.is_some_and(|f| f.iter().any(|f| f.xrgb.chunks_exact(4).any(|p| p[..3] != [0, 0, 0])));
+        // Before the commit, what may be lit from now on and the wall clock: the picture can
+        // show before the flip completes (a power cut may come in between).
+        if tracing::enabled!(tracing::Level::DEBUG) {
+            let prints: Vec<String> = match frames {
+                Some(f) => f.iter().map(|f| format!("{:08x}", frame_fingerprint(f.xrgb))).collect(),
+                None => vec!["black".into()],
+            };
+            tracing::debug!(unix_us = unix_us(), lit, frames = %prints.join(","), "presenting");
+        }
         let commit_us = monotonic_us();
         let flips = self.commit(&live, true)?;
         let flip_us = self.wait_flips(flips)?;
@@ -427,11 +456,10 @@ impl KmsOutput {
             head.front = 1 - head.front;
             head.modeset = false;
         }
-        let lit =
-            frames.is_some_and(|f| f.iter().any(|f| f.xrgb.chunks_exact(4).any(|p| p[..3] != [0, 0, 0])));
         tracing::info!(
             commit_mono_us = commit_us,
             flip_mono_us = flip_us,
+            unix_us = unix_us(),
             heads = live.len(),
             lit,
             "page flip complete"
