@@ -1,6 +1,8 @@
 //! Loading a bundle: signature, validity, version (against the ledger's anti-rollback record)
-//! and every scene's light bound — recomputed here from the certificate by `restage-shared`'s
-//! independent check — before anything is shown. Only then is the version recorded.
+//! and every scene's light check — `restage-shared`'s `LightCheck`: every lit pixel vouched
+//! for by the certificate, the peak recomputed from it and held to the bound, with this
+//! stage's `[light_check]` limits — before anything is shown. Only then is the version
+//! recorded.
 //! Frames are read again (and re-hashed) when needed; the idle scene and the first
 //! restoration stay in memory so a press shows light within a frame.
 
@@ -11,7 +13,7 @@ use std::sync::Arc;
 
 use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions};
 use restage_shared::keys::{KeyError, TrustStore};
-use restage_shared::light::{XrgbFrame, max_irradiance};
+use restage_shared::light::{StageLimits, XrgbFrame, max_irradiance};
 use restage_shared::policy::IdleMode as PolicyIdle;
 use thiserror::Error;
 
@@ -70,12 +72,14 @@ impl FrameStore {
 
 /// Verifies everything about the bundle at `path` (signature with a trusted key, validity
 /// at `now_unix_ms`, version against the ledger, every section's hash, every scene's light
-/// bound); returns it with its identifying hash (hex BLAKE3 of the manifest). Records nothing.
+/// check under `stage`); returns it with its identifying hash (hex BLAKE3 of the manifest).
+/// Records nothing.
 pub fn open_verified(
     path: &Path,
     trust_dir: &Path,
     ledger: &Ledger,
     now_unix_ms: i64,
+    stage: StageLimits,
 ) -> Result<(VerifiedBundle<File>, String), LoadError> {
     // The one time of this load: validity is judged against it.
     let now_s = now_unix_ms.div_euclid(1000);
@@ -84,7 +88,11 @@ pub fn open_verified(
     let file = File::open(path).map_err(|source| LoadError::Open { path: path.into(), source })?;
     let refused = |source| LoadError::Refused { path: path.into(), source };
     let last = |object: &str| ledger.accepted_version(object).ok().flatten();
-    let opts = VerifyOptions { now_unix_s: now_s, last_accepted: &last, limits: Limits::default() };
+    let opts = VerifyOptions {
+        now_unix_s: now_s,
+        last_accepted: &last,
+        limits: Limits { stage, ..Limits::default() },
+    };
     let bundle =
         BundleReader::open(file, &trust, &opts).map_err(refused)?.verify(|_| Ok(())).map_err(refused)?;
     let hash: String = bundle.manifest_hash.iter().map(|b| format!("{b:02x}")).collect();
@@ -94,7 +102,8 @@ pub fn open_verified(
     Ok((bundle, hash))
 }
 
-/// Verifies and loads the bundle at `path`. `idle` is the config's idle override, if any.
+/// Verifies (as [`open_verified`]) and loads the bundle at `path`. `idle` is the config's idle
+/// override, if any.
 /// `playable` is asked last whether the outputs can show the bundle (e.g. the projectors
 /// offer its frame size; it may set the modes); a refusal there is `Unplayable` too.
 /// On success the version is recorded as accepted and the bundle made active in the ledger:
@@ -104,15 +113,17 @@ pub fn load(
     trust_dir: &Path,
     ledger: &mut Ledger,
     now_unix_ms: i64,
+    stage: StageLimits,
     idle: Option<IdleMode>,
     playable: impl FnOnce(&Show) -> Result<(), String>,
 ) -> Result<Loaded, LoadError> {
-    let (bundle, hash) = open_verified(path, trust_dir, ledger, now_unix_ms)?;
+    let (bundle, hash) = open_verified(path, trust_dir, ledger, now_unix_ms, stage)?;
     let m = &bundle.manifest;
     let refused = |source| LoadError::Refused { path: path.into(), source };
     let unplayable = |problem: String| LoadError::Unplayable { path: path.into(), problem };
 
-    // The black level's light, by the same independent check on all-zero frames.
+    // The black level's light: the per-point sums on all-zero frames (which light no pixel,
+    // so the coverage test has nothing to vouch for).
     let zeros: Vec<Vec<u8>> = m.projectors.iter().map(|p| vec![0u8; p.frame_len() as usize]).collect();
     let zero_frames: Vec<XrgbFrame<'_>> = m
         .projectors
@@ -271,8 +282,10 @@ mod tests {
         let (v3, v4) = (write(3), write(4));
         let mut ledger = Ledger::open_in_memory(0).unwrap();
         let now = 1_700_000_100_000;
-        assert!(load(&v3, &trust, &mut ledger, now, None, |_| Ok(())).is_ok());
-        let e = load(&v4, &trust, &mut ledger, now, None, |_| Err("no 32x24 mode".into())).err().unwrap();
+        let lim = StageLimits::default();
+        assert!(load(&v3, &trust, &mut ledger, now, lim, None, |_| Ok(())).is_ok());
+        let e =
+            load(&v4, &trust, &mut ledger, now, lim, None, |_| Err("no 32x24 mode".into())).err().unwrap();
         assert!(
             e.to_string().contains("v4.bundle") && e.to_string().contains("cannot show it: no 32x24 mode"),
             "{e}"
@@ -281,7 +294,7 @@ mod tests {
         // The current, older bundle still loads (no rollback refusal).
         let mut asked = false;
         assert!(
-            load(&v3, &trust, &mut ledger, now, None, |_| {
+            load(&v3, &trust, &mut ledger, now, lim, None, |_| {
                 asked = true;
                 Ok(())
             })

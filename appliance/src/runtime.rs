@@ -206,6 +206,7 @@ impl App {
             &self.config.trust_dir,
             &mut self.ledger,
             now.unix_ms,
+            self.config.light_check.limits(),
             self.config.player.idle,
             |show| self.output.set_modes(&show.projectors).map_err(|e| e.to_string()),
         );
