@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use restage_shared::light::StageLimits;
 use serde::Deserialize;
 use thiserror::Error;
 
@@ -38,6 +39,8 @@ pub struct Config {
     pub player: PlayerConfig,
     #[serde(default)]
     pub ledger: LedgerConfig,
+    #[serde(default)]
+    pub light_check: LightCheckConfig,
     pub output: OutputConfig,
     #[serde(default)]
     pub inputs: InputsConfig,
@@ -133,6 +136,33 @@ impl LedgerConfig {
     /// reservation runs out.
     pub fn max_watchdog_ms(&self) -> u64 {
         self.renew_ahead_ms.saturating_sub(KILL_TO_DARK_MS)
+    }
+}
+
+/// What the light check assumes about this stage (see `restage_shared::light::check`): a
+/// certificate coefficient below `lux_at_1m * min_cos / max_throw_m^2` is refused as
+/// under-stating the light. Tighter values (the real throw) make the check stricter.
+#[derive(Clone, Copy, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct LightCheckConfig {
+    /// Farthest distance from a projector to the object, metres (0 < x <= 1000). Default 10.
+    pub max_throw_m: f64,
+    /// Smallest cos(angle of incidence) x vignetting at which a lit pixel's brightest point
+    /// may be lit (0 < x <= 1). Default 0.01.
+    pub min_cos: f64,
+}
+
+impl Default for LightCheckConfig {
+    fn default() -> Self {
+        let d = StageLimits::default();
+        Self { max_throw_m: d.max_throw_m, min_cos: d.min_cos }
+    }
+}
+
+impl LightCheckConfig {
+    /// The limits the bundle reader takes.
+    pub fn limits(&self) -> StageLimits {
+        StageLimits { max_throw_m: self.max_throw_m, min_cos: self.min_cos }
     }
 }
 
@@ -306,6 +336,13 @@ impl Config {
         if !(-840..=840).contains(&l.utc_offset_minutes) {
             return Err(range("ledger.utc_offset_minutes", l.utc_offset_minutes.to_string(), "-840..=840"));
         }
+        let lc = &self.light_check;
+        if !(lc.max_throw_m.is_finite() && lc.max_throw_m > 0.0 && lc.max_throw_m <= 1000.0) {
+            return Err(range("light_check.max_throw_m", lc.max_throw_m.to_string(), "0 < metres <= 1000"));
+        }
+        if !(lc.min_cos > 0.0 && lc.min_cos <= 1.0) {
+            return Err(range("light_check.min_cos", lc.min_cos.to_string(), "0 < min_cos <= 1"));
+        }
         match &self.output {
             OutputConfig::Headless { projectors, .. } | OutputConfig::Window { projectors } => {
                 if !(1..=8).contains(projectors) {
@@ -358,6 +395,18 @@ mod tests {
         assert_eq!(c.bundle_path(), Path::new("/var/lib/restage/active.bundle"));
         assert!(matches!(c.output, OutputConfig::Kms { .. }));
         assert!(c.inputs.serial.is_some());
+        assert_eq!(c.light_check.limits(), StageLimits { max_throw_m: 6.0, min_cos: 0.01 });
+    }
+
+    #[test]
+    fn light_check_limits_default_and_range() {
+        let base = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[output]\nkind = \"window\"\n";
+        let c = Config::parse(base, Path::new("c.toml")).unwrap();
+        assert_eq!(c.light_check.limits(), StageLimits::default());
+        let e = Config::parse(&format!("{base}[light_check]\nmin_cos = 0.0\n"), Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("light_check.min_cos"), "{e}");
     }
 
     #[test]

@@ -11,3 +11,4 @@ pub mod output;
 pub mod player;
 pub mod runtime;
 pub mod show;
+pub mod verify;

@@ -1,6 +1,8 @@
 //! Loading a bundle: signature, validity, version (against the ledger's anti-rollback record)
-//! and every scene's light bound — recomputed here from the certificate by `restage-shared`'s
-//! independent check — before anything is shown. Only then is the version recorded.
+//! and every scene's light check — `restage-shared`'s `LightCheck`: every lit pixel vouched
+//! for by the certificate, the peak recomputed from it and held to the bound, with this
+//! stage's `[light_check]` limits — before anything is shown. Only then is the version
+//! recorded.
 //! Frames are read again (and re-hashed) when needed; the idle scene and the first
 //! restoration stay in memory so a press shows light within a frame.
 //!
@@ -16,7 +18,7 @@ use std::sync::Arc;
 
 use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions};
 use restage_shared::keys::{KeyError, TrustStore};
-use restage_shared::light::{XrgbFrame, max_irradiance};
+use restage_shared::light::{StageLimits, XrgbFrame, max_irradiance};
 use restage_shared::policy::IdleMode as PolicyIdle;
 use thiserror::Error;
 
@@ -104,14 +106,16 @@ impl FrameStore {
 
 /// Verifies everything about the bundle at `path` (signature with a trusted key, validity
 /// at `now_unix_ms`, version against the ledger, every section's hash, every scene's light
-/// bound); returns it with its identifying hash (hex BLAKE3 of the manifest). Records nothing.
+/// check under `stage`); returns it with its identifying hash (hex BLAKE3 of the manifest).
+/// Records nothing.
 pub fn open_verified(
     path: &Path,
     trust_dir: &Path,
     ledger: &Ledger,
     now_unix_ms: i64,
+    stage: StageLimits,
 ) -> Result<(VerifiedBundle<File>, String), LoadError> {
-    open_verified_within(path, trust_dir, ledger, now_unix_ms, None)
+    open_verified_within(path, trust_dir, ledger, now_unix_ms, stage, None)
 }
 
 /// [`open_verified`], refusing before anything large is decoded a bundle whose memory need
@@ -122,6 +126,7 @@ pub fn open_verified_within(
     trust_dir: &Path,
     ledger: &Ledger,
     now_unix_ms: i64,
+    stage: StageLimits,
     memory: Option<(u64, bool)>,
 ) -> Result<(VerifiedBundle<File>, String), LoadError> {
     // The one time of this load: validity is judged against it.
@@ -131,7 +136,11 @@ pub fn open_verified_within(
     let file = File::open(path).map_err(|source| LoadError::Open { path: path.into(), source })?;
     let refused = |source| LoadError::Refused { path: path.into(), source };
     let last = |object: &str| ledger.accepted_version(object).ok().flatten();
-    let opts = VerifyOptions { now_unix_s: now_s, last_accepted: &last, limits: Limits::default() };
+    let opts = VerifyOptions {
+        now_unix_s: now_s,
+        last_accepted: &last,
+        limits: Limits { stage, ..Limits::default() },
+    };
     let reader = BundleReader::open(file, &trust, &opts).map_err(refused)?;
     if let Some((limit, scan_out)) = memory {
         let need = crate::memory::need_for_manifest(reader.manifest(), scan_out);
@@ -202,6 +211,8 @@ pub struct LoadOptions {
     /// Refuse bundles needing more memory than this (bytes), and whether KMS scan-out
     /// buffers count.
     pub memory: Option<(u64, bool)>,
+    /// What the light check assumes about this stage (`[light_check]`).
+    pub stage: StageLimits,
 }
 
 /// Verifies the bundle at `path` and builds what the player needs: the slow half of a load,
@@ -215,12 +226,13 @@ pub fn prepare(
     opts: &LoadOptions,
 ) -> Result<Prepared, LoadError> {
     let (idle, object_id) = (opts.idle, opts.object_id.as_deref());
-    let (bundle, hash) = open_verified_within(path, trust_dir, ledger, now_unix_ms, opts.memory)?;
+    let (bundle, hash) = open_verified_within(path, trust_dir, ledger, now_unix_ms, opts.stage, opts.memory)?;
     check_object(path, ledger, object_id, &bundle.manifest.object.id)?;
     let m = &bundle.manifest;
     let unplayable = |problem: String| LoadError::Unplayable { path: path.into(), problem };
 
-    // The black level's light, by the same independent check on all-zero frames.
+    // The black level's light: the per-point sums on all-zero frames (which light no pixel,
+    // so the coverage test has nothing to vouch for).
     let zeros: Vec<Vec<u8>> = m.projectors.iter().map(|p| vec![0u8; p.frame_len() as usize]).collect();
     let zero_frames: Vec<XrgbFrame<'_>> = m
         .projectors

@@ -52,13 +52,20 @@ enum Command {
         #[arg(long)]
         reason: String,
     },
-    /// Verify a bundle (signature, validity, every section, every scene's light bound) with
-    /// the same code the player loads bundles with.
+    /// Verify a bundle (signature, validity, every section, every scene's light check: lit
+    /// pixels vouched for by the certificate, peak within the bound) with the same code the
+    /// player loads bundles with.
     Verify {
         bundle: PathBuf,
         /// Directory of trusted public keys (*.pem, SPKI).
         #[arg(long)]
         trust: PathBuf,
+        /// The stage's farthest projector throw in metres, as `[light_check] max_throw_m`.
+        #[arg(long, default_value_t = restage_shared::light::DEFAULT_MAX_THROW_M)]
+        max_throw_m: f64,
+        /// As `[light_check] min_cos`.
+        #[arg(long, default_value_t = restage_shared::light::DEFAULT_MIN_COS)]
+        min_cos: f64,
     },
 }
 
@@ -71,11 +78,12 @@ fn main() -> Result<()> {
         Command::Run { config } => run(&config),
         Command::Status { config, json } => status(&config, json),
         Command::Install { bundle, config } => install(&bundle, &config),
-        Command::Verify { bundle, trust } => verify(&bundle, &trust),
+        Command::Verify { bundle, trust, max_throw_m, min_cos } => {
+            verify(&bundle, &trust, restage_shared::light::StageLimits { max_throw_m, min_cos })
+        }
         Command::LedgerReset { config, reason } => ledger_reset(&config, &reason),
     }
 }
-
 fn ledger_reset(config: &Path, reason: &str) -> Result<()> {
     let config = Config::load(config)?;
     if reason.trim().len() < 3 {
@@ -97,16 +105,13 @@ fn ledger_now(ledger: &Ledger) -> Result<i64> {
     Ok(LedgerClock::new(SystemTime, ledger.high_water_ms()?).now().unix_ms)
 }
 
-fn verify(bundle: &Path, trust: &Path) -> Result<()> {
-    use restage_shared::bundle::{VerifyOptions, describe, verify_file};
+fn verify(bundle: &Path, trust: &Path, stage: restage_shared::light::StageLimits) -> Result<()> {
     // The one time of this load, taken before anything is read.
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .context("the system clock is before 1970")?
         .as_secs() as i64;
-    let v = verify_file(bundle, trust, &VerifyOptions::at(now))?;
-    print!("{}", describe(&v.manifest, Some(&v.peaks)));
-    println!("OK: signature verified with key {}", v.key_id);
+    print!("{}", restage_appliance::verify::verify_report(bundle, trust, now, stage)?);
     Ok(())
 }
 
@@ -187,7 +192,8 @@ fn install(bundle: &Path, config: &Path) -> Result<()> {
     let config = Config::load(config)?;
     let ledger = Ledger::open_stage(&config.state_dir, config.ledger.utc_offset_minutes)?;
     let now = ledger_now(&ledger)?;
-    let (verified, hash) = loader::open_verified(bundle, &config.trust_dir, &ledger, now)?;
+    let (verified, hash) =
+        loader::open_verified(bundle, &config.trust_dir, &ledger, now, config.light_check.limits())?;
     loader::check_object(bundle, &ledger, config.object_id.as_deref(), &verified.manifest.object.id)?;
     let m = &verified.manifest;
     eprintln!(
@@ -216,7 +222,7 @@ fn install(bundle: &Path, config: &Path) -> Result<()> {
     }
     // The file now in place must be the one verified (a bundle changed between verify and
     // copy would otherwise slip in): verify the installed copy again.
-    loader::open_verified(&target, &config.trust_dir, &ledger, now)
+    loader::open_verified(&target, &config.trust_dir, &ledger, now, config.light_check.limits())
         .context("the installed copy does not verify")?;
     eprintln!("installed as {}", target.display());
     if let Some(sock) = &config.inputs.control_socket {

@@ -297,6 +297,7 @@ impl App {
             object_id: self.config.object_id.clone(),
             memory: crate::memory::cgroup_limit()
                 .map(|l| (l, matches!(self.config.output, OutputConfig::Kms { .. }))),
+            stage: self.config.light_check.limits(),
         }
     }
 

@@ -1,6 +1,6 @@
 //! The light model shared by authoring and appliance: response curves, irradiance per unit
-//! area in lux, the light certificate, and the independent bound check
-//! ([`max_irradiance`]) that the appliance runs on every scene before showing it.
+//! area in lux, the light certificate, and the independent light check ([`LightCheck`]) that
+//! the appliance runs on every scene before showing it.
 //!
 //! Irradiance is in lux throughout (see ARCHITECTURE.md, "Units and frames").
 //!
@@ -21,11 +21,28 @@
 //! [`LuxWeighting`]. `response_kc` is made non-decreasing by a running maximum, so the
 //! value at the block's maximum bounds every pixel of the block. Because a blur kernel's
 //! weights sum to at most 1, the light a point receives from projector `k` is at most
-//! `L_ik` times the brightest response in its block: the check over-estimates, never
-//! under-estimates. A scene is allowed when `max_i E_i <= e_bound_lux * (1 - safety_margin)`.
+//! `L_ik` times the brightest response in its block: the sums over-estimate, never
+//! under-estimate — *for the pixels the blocks hold*. [`max_irradiance`] is these sums alone.
+//!
+//! # The check
+//!
+//! The sums trust the certificate to hold every lit pixel in some block, with a true
+//! coefficient. [`LightCheck`] does not: it also refuses a scene that lights a pixel no block
+//! covers, or that only blocks with an implausibly small coefficient cover
+//! ([`check`] module docs: what it guarantees and assumes), zero coefficients
+//! ([`LightCertificate::check_coefficients`]), and response curves that do not reach full
+//! output at 255 or lie under a plausibility floor ([`LightModel::check_responses`]). A scene
+//! is allowed when all of that holds and
+//! `max_i E_i <= e_bound_lux * (1 - safety_margin)`.
+
+pub mod check;
 
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
+
+pub use self::check::{
+    Coverage, DEFAULT_MAX_THROW_M, DEFAULT_MIN_COS, LightCheck, SceneCheck, StageLimits, UnvouchedPixel,
+};
 
 /// Seconds in one hour: exposure budgets are in lux-hours (CIE 157:2004).
 pub const SECONDS_PER_HOUR: f64 = 3600.0;
@@ -39,6 +56,26 @@ pub const MAX_CERT_POINTS: u32 = 1 << 22;
 pub const WORK_FACTOR: u64 = 16;
 /// See [`WORK_FACTOR`].
 pub const MIN_WORK: u64 = 1 << 20;
+/// Each channel's running-max response must reach this at 255: responses are relative to the
+/// output at 255 above black, so an honest curve ends at 1 (a measured one within noise).
+pub const RESPONSE_FULL_MIN: f32 = 0.99;
+/// Below this value the response may be anything (projectors crush their darkest values).
+pub const RESPONSE_FLOOR_KNEE: u8 = 64;
+/// Above the knee the running-max response must be at least
+/// `RESPONSE_FULL_MIN * ((v - knee) / (255 - knee))^RESPONSE_FLOOR_GAMMA`: far under any
+/// projector we know (gamma 1.8 to 2.6, S-curves), it stops a signed curve from charging
+/// mid-level values as nearly black.
+pub const RESPONSE_FLOOR_GAMMA: f32 = 4.0;
+
+/// The least running-max response an honest curve has at value `v`.
+pub fn response_floor(v: usize) -> f32 {
+    let knee = usize::from(RESPONSE_FLOOR_KNEE);
+    if v <= knee {
+        return 0.0;
+    }
+    let x = (v.min(255) - knee) as f32 / (255 - knee) as f32;
+    RESPONSE_FULL_MIN * x.powf(RESPONSE_FLOOR_GAMMA)
+}
 
 /// Exposure in lux-hours of `lux` held for `seconds`.
 pub fn lux_hours(lux: f64, seconds: f64) -> f64 {
@@ -63,6 +100,36 @@ pub enum LightError {
         "scene {scene}: peak irradiance {peak_lux:.2} lx exceeds the allowed {allowed_lux:.2} lx (E_bound {e_bound_lux} lx less the safety margin)"
     )]
     OverBound { scene: String, peak_lux: f64, allowed_lux: f64, e_bound_lux: f64 },
+    #[error(
+        "light model: projector {projector} channel {channel}: the response reaches only {reached} at 255 (expected at least {RESPONSE_FULL_MIN}: responses are relative to the output at 255 above black)"
+    )]
+    ResponseShort { projector: usize, channel: usize, reached: f32 },
+    #[error(
+        "light model: projector {projector} channel {channel}: the response at value {value} is {response}, under the plausibility floor {floor} (it would charge mid-level light as nearly black)"
+    )]
+    ResponseImplausible { projector: usize, channel: usize, value: usize, response: f32, floor: f32 },
+    #[error(
+        "light certificate: projector {projector} point {point}: block [{x0}, {x1}) x [{y0}, {y1}) has L_ik = 0 (a non-empty block says the light reaches the point, so it cannot be zero)"
+    )]
+    ZeroCoefficient { projector: usize, point: usize, x0: u16, y0: u16, x1: u16, y1: u16 },
+    #[error(
+        "scene {scene}, projector {projector}: pixel ({x}, {y}) is lit (r, g, b = {rgb:?}) but no block of the light certificate covers it, so nothing bounds its light"
+    )]
+    Uncovered { scene: String, projector: usize, x: u32, y: u32, rgb: [u8; 3] },
+    #[error(
+        "scene {scene}, projector {projector}: pixel ({x}, {y}) is lit (r, g, b = {rgb:?}) but the blocks covering it have L_ik of at most {best_lux_per_unit} lx per unit, under the floor {floor_lux_per_unit:.4} (lux_at_1m * min_cos / max_throw^2): the certificate under-states its light"
+    )]
+    UnderStated {
+        scene: String,
+        projector: usize,
+        x: u32,
+        y: u32,
+        rgb: [u8; 3],
+        best_lux_per_unit: f32,
+        floor_lux_per_unit: f64,
+    },
+    #[error("stage limits: {0}")]
+    Limits(String),
 }
 
 /// One projector's radiometry, as calibrated.
@@ -71,7 +138,9 @@ pub struct ProjectorLight {
     /// Per channel (r, g, b), [`RESPONSE_LEVELS`] entries: light output for each 8-bit
     /// value relative to the output at 255 above black (so normally `[0] == 0` and
     /// `[255] == 1`). The check uses the running maximum, so a slightly non-monotonic
-    /// measured curve stays conservative.
+    /// measured curve stays conservative; the light check requires the running maximum to
+    /// reach [`RESPONSE_FULL_MIN`] at 255 and stay above [`response_floor`]
+    /// ([`LightModel::check_responses`]).
     pub response: [Vec<f32>; 3],
     /// Light at input 0 per channel, in the same relative units as `response`. It counts
     /// toward the bound wherever the projector reaches.
@@ -177,9 +246,40 @@ impl LightModel {
         Ok(())
     }
 
+    /// The light check's test of the responses (beyond [`LightModel::validate`]'s ranges):
+    /// each channel's running maximum reaches [`RESPONSE_FULL_MIN`] at 255 and never falls
+    /// under [`response_floor`]. A curve that never reaches full output charges full white as
+    /// less (all-zero: as nothing); one under the floor charges mid-level values as black.
+    pub fn check_responses(&self) -> Result<(), LightError> {
+        for (k, p) in self.projectors.iter().enumerate() {
+            for (c, curve) in p.response.iter().enumerate() {
+                // f32::max skips NaN, so a NaN curve reaches only its numbers.
+                let reached = curve.iter().copied().fold(0.0f32, f32::max);
+                if reached < RESPONSE_FULL_MIN {
+                    return Err(LightError::ResponseShort { projector: k, channel: c, reached });
+                }
+                let mut run = 0.0f32;
+                for (v, r) in curve.iter().enumerate() {
+                    run = run.max(*r);
+                    let floor = response_floor(v);
+                    if run < floor {
+                        return Err(LightError::ResponseImplausible {
+                            projector: k,
+                            channel: c,
+                            value: v,
+                            response: run,
+                            floor,
+                        });
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Per projector, per channel, per value: `black + running max of response`, the
     /// conservative relative light used by the check.
-    fn tables(&self) -> Vec<[[f64; RESPONSE_LEVELS]; 3]> {
+    pub(crate) fn tables(&self) -> Vec<[[f64; RESPONSE_LEVELS]; 3]> {
         self.projectors
             .iter()
             .map(|p| {
@@ -245,7 +345,7 @@ pub struct LightCertificate {
 
 impl LightCertificate {
     /// Checks sizes, blocks inside the frames, finite non-negative coefficients, and the
-    /// work bound ([`WORK_FACTOR`]).
+    /// work bound ([`WORK_FACTOR`]). What the light check adds is in [`LightCheck`].
     pub fn validate(&self) -> Result<(), LightError> {
         let bad = |s: String| Err(LightError::Certificate(s));
         if self.points == 0 || self.points > MAX_CERT_POINTS {
@@ -288,6 +388,20 @@ impl LightCertificate {
             let max_work = (WORK_FACTOR * u64::from(m.width) * u64::from(m.height)).max(MIN_WORK);
             if work > max_work {
                 return bad(format!("projector {k}: blocks cover {work} pixels in all (at most {max_work})"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The light check's test of the coefficients: a non-empty block says the projector's
+    /// light reaches the point, so its `L_ik` cannot be 0.
+    pub fn check_coefficients(&self) -> Result<(), LightError> {
+        for (k, m) in self.projectors.iter().enumerate() {
+            if let Some((i, f)) =
+                m.footprints.iter().enumerate().find(|(_, f)| !f.is_empty() && f.lux_per_unit == 0.0)
+            {
+                let (x0, y0, x1, y1) = (f.x0, f.y0, f.x1, f.y1);
+                return Err(LightError::ZeroCoefficient { projector: k, point: i, x0, y0, x1, y1 });
             }
         }
         Ok(())
@@ -358,10 +472,12 @@ pub struct PeakIrradiance {
     pub pixel: Option<[u16; 2]>,
 }
 
-/// Accumulates one scene's irradiance projector by projector, so a streaming reader needs
-/// only one frame at a time. [`max_irradiance`] is this with all frames at once.
+/// Accumulates one scene's per-point sums projector by projector, so a streaming reader needs
+/// only one frame at a time. [`max_irradiance`] is this with all frames at once; the check
+/// ([`SceneCheck`]) wraps it with the coverage test. Not public: alone it trusts the
+/// certificate's coverage.
 #[derive(Debug)]
-pub struct SceneIrradiance<'a> {
+pub(crate) struct SceneIrradiance<'a> {
     light: &'a LightModel,
     cert: &'a LightCertificate,
     tables: Vec<[[f64; RESPONSE_LEVELS]; 3]>,
@@ -372,7 +488,7 @@ pub struct SceneIrradiance<'a> {
 
 impl<'a> SceneIrradiance<'a> {
     /// Starts a scene. The light model and certificate are validated here.
-    pub fn new(light: &'a LightModel, cert: &'a LightCertificate) -> Result<Self, LightError> {
+    pub(crate) fn new(light: &'a LightModel, cert: &'a LightCertificate) -> Result<Self, LightError> {
         light.validate()?;
         cert.validate()?;
         if cert.projectors.len() != light.projectors.len() {
@@ -382,17 +498,27 @@ impl<'a> SceneIrradiance<'a> {
                 light.projectors.len()
             )));
         }
-        Ok(Self {
+        Ok(Self::start(light, cert, light.tables()))
+    }
+
+    /// Starts a scene whose light model and certificate were validated together (as
+    /// [`LightCheck::new`] does) with `tables` from [`LightModel::tables`].
+    pub(crate) fn start(
+        light: &'a LightModel,
+        cert: &'a LightCertificate,
+        tables: Vec<[[f64; RESPONSE_LEVELS]; 3]>,
+    ) -> Self {
+        Self {
             light,
             cert,
-            tables: light.tables(),
+            tables,
             acc: vec![[0.0; 3]; cert.points as usize],
             seen: vec![false; cert.projectors.len()],
-        })
+        }
     }
 
     /// Adds projector `k`'s frame.
-    pub fn add(&mut self, k: usize, frame: XrgbFrame<'_>) -> Result<(), LightError> {
+    pub(crate) fn add(&mut self, k: usize, frame: XrgbFrame<'_>) -> Result<(), LightError> {
         let Some(map) = self.cert.projectors.get(k) else {
             return Err(LightError::FrameCount { expected: self.cert.projectors.len(), got: k + 1 });
         };
@@ -434,7 +560,7 @@ impl<'a> SceneIrradiance<'a> {
     }
 
     /// The scene's peak, once every projector's frame was added.
-    pub fn finish(self) -> Result<PeakIrradiance, LightError> {
+    pub(crate) fn finish(self) -> Result<PeakIrradiance, LightError> {
         let got = self.seen.iter().filter(|s| **s).count();
         if got != self.seen.len() {
             return Err(LightError::FrameCount { expected: self.seen.len(), got });
@@ -453,9 +579,11 @@ impl<'a> SceneIrradiance<'a> {
 }
 
 /// Peak irradiance in lux over the certificate's points for a scene given as one frame per
-/// projector (in projector order). Conservative over each point's patch (see the module
-/// docs). Compensation checks its frames with this; the appliance checks every bundle with
-/// it.
+/// projector (in projector order): the per-point sums only, conservative over each point's
+/// patch for the pixels its blocks hold (see the module docs). It trusts the certificate's
+/// coverage: a bundle is judged by [`LightCheck`], which adds the coverage test. Uses: the
+/// black level's light (all-zero frames light nothing), compensation's parallel check on
+/// parts of a certificate (with [`Coverage`] over the whole), tests.
 pub fn max_irradiance(
     light: &LightModel,
     cert: &LightCertificate,

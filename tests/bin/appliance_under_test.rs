@@ -1,23 +1,38 @@
-//! `restage-appliance-under-test run --config FILE`: the appliance's `run` (the same library
-//! entry point `restage-appliance run` calls), built in this crate so its end-to-end tests
-//! can start it as a real process and kill it.
+//! `restage-appliance-under-test run --config FILE` and `... verify BUNDLE --trust DIR`: the
+//! appliance's `run` and `verify` (the same library entry points `restage-appliance run` and
+//! `restage-appliance verify` call, with default light-check limits), built in this crate so
+//! its end-to-end tests can start it as a real process and kill it.
 
+use std::path::Path;
 use std::process::ExitCode;
+
+const USAGE: &str = "usage: restage-appliance-under-test run --config FILE | verify BUNDLE --trust DIR";
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt().with_writer(std::io::stderr).init();
     let args: Vec<String> = std::env::args().collect();
-    let [_, run, flag, path] = args.as_slice() else {
-        eprintln!("usage: restage-appliance-under-test run --config FILE");
-        return ExitCode::from(2);
+    let result = match args.iter().map(String::as_str).collect::<Vec<_>>().as_slice() {
+        [_, "run", "--config", path] => restage_appliance::config::Config::load(Path::new(path))
+            .map_err(|e| e.to_string())
+            .and_then(|c| restage_appliance::runtime::run_blocking(c).map_err(|e| e.to_string())),
+        [_, "verify", bundle, "--trust", trust] => {
+            let now = std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_secs() as i64);
+            restage_appliance::verify::verify_report(
+                Path::new(bundle),
+                Path::new(trust),
+                now,
+                Default::default(),
+            )
+            .map(|report| print!("{report}"))
+            .map_err(|e| e.to_string())
+        }
+        _ => {
+            eprintln!("{USAGE}");
+            return ExitCode::from(2);
+        }
     };
-    if run != "run" || flag != "--config" {
-        eprintln!("usage: restage-appliance-under-test run --config FILE");
-        return ExitCode::from(2);
-    }
-    let result = restage_appliance::config::Config::load(std::path::Path::new(path))
-        .map_err(|e| e.to_string())
-        .and_then(|c| restage_appliance::runtime::run_blocking(c).map_err(|e| e.to_string()));
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

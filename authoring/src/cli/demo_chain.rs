@@ -262,12 +262,14 @@ pub fn run_chain(
         size as f64 / 1e6
     ));
 
-    // Step 8: verify as the appliance would (signature, hashes, every scene's light bound).
+    // Step 8: verify as the appliance would (signature, hashes, every scene's light check).
     super::verify::run(&super::verify::VerifyArgs {
         bundle: bundle_path.clone(),
         trust: trust.clone(),
         now: None,
         accepted_version: None,
+        max_throw_m: restage_shared::light::DEFAULT_MAX_THROW_M,
+        min_cos: restage_shared::light::DEFAULT_MIN_COS,
     })?;
     log(format!("step 8 verify ({:.1} s): bundle verified against {}", at(), trust.display()));
 

@@ -1,10 +1,12 @@
 //! `restage-author verify BUNDLE --trust DIR`: the appliance's own verification (signature,
-//! validity, version, every section hash, every scene's light bound), run on the workstation.
+//! validity, version, every section hash, every scene's light check: lit pixels vouched for
+//! by the certificate, peak within the bound), run on the workstation.
 
 use std::path::PathBuf;
 
 use anyhow::Result;
 use restage_shared::bundle::{Limits, VerifyOptions, verify_file};
+use restage_shared::light::{DEFAULT_MAX_THROW_M, DEFAULT_MIN_COS, StageLimits};
 
 #[derive(Debug, clap::Args)]
 pub struct VerifyArgs {
@@ -18,6 +20,12 @@ pub struct VerifyArgs {
     /// Refuse versions below this one (as an appliance that accepted it would).
     #[arg(long)]
     pub accepted_version: Option<u64>,
+    /// The stage's farthest projector throw in metres (the appliance's `[light_check]`).
+    #[arg(long, default_value_t = DEFAULT_MAX_THROW_M)]
+    pub max_throw_m: f64,
+    /// The appliance's `[light_check] min_cos`.
+    #[arg(long, default_value_t = DEFAULT_MIN_COS)]
+    pub min_cos: f64,
 }
 
 pub fn run(args: &VerifyArgs) -> Result<()> {
@@ -34,7 +42,12 @@ pub fn report(args: &VerifyArgs) -> Result<String> {
     };
     let accepted = args.accepted_version;
     let last = move |_: &str| accepted;
-    let opts = VerifyOptions { now_unix_s: now, last_accepted: &last, limits: Limits::default() };
+    let stage = StageLimits { max_throw_m: args.max_throw_m, min_cos: args.min_cos };
+    let opts = VerifyOptions {
+        now_unix_s: now,
+        last_accepted: &last,
+        limits: Limits { stage, ..Limits::default() },
+    };
     let v = verify_file(&args.bundle, &args.trust, &opts)?;
     let m = &v.manifest;
     let mut out = String::new();

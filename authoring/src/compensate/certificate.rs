@@ -2,7 +2,9 @@
 //! rectangle of projector pixels whose light can reach it and an upper bound of the lux per
 //! unit of relative output there. The guarantee is enforced on it, and it travels in the
 //! bundle so the appliance can recompute every scene's irradiance by itself
-//! (`restage_shared::light::max_irradiance`, same semantics).
+//! (`restage_shared::light::LightCheck`: the same sums, plus the test that every lit pixel
+//! lies in a block with a plausible coefficient, which compensation meets by construction —
+//! the splat support is inside the blocks — and enforces with `guarantee::darken_unvouched`).
 //!
 //! A point's rectangle per projector covers, for every camera pixel of its patch that the
 //! projector sees, the projector pixels of that camera pixel's footprint (the support
@@ -13,8 +15,8 @@
 
 use rayon::prelude::*;
 use restage_shared::light::{
-    CertificateMap, Footprint, LightCertificate, LightError, LightModel, LuxWeighting, PeakIrradiance,
-    ProjectorLight, XrgbFrame, max_irradiance, xrgb_from_rgb,
+    CertificateMap, Coverage, Footprint, LightCertificate, LightError, LightModel, LuxWeighting,
+    PeakIrradiance, ProjectorLight, StageLimits, XrgbFrame, max_irradiance, xrgb_from_rgb,
 };
 
 use super::geometry::Geometry;
@@ -241,12 +243,25 @@ impl Certificate {
     }
 }
 
-/// [`independent_peak`] over the parts of [`Certificate::to_shared_parts`], in parallel: the
-/// peak of the whole is the largest of the parts' peaks (the check is a maximum over
-/// independent points), the first on ties; any part's error is the result.
+/// The coverage half of the appliance's light check, over the union of `parts` (the parts of
+/// one certificate), with the appliance's default stage limits.
+pub fn coverage_of_parts(
+    light: &LightModel,
+    parts: &[(u32, LightCertificate)],
+) -> Result<Coverage, LightError> {
+    let refs: Vec<&LightCertificate> = parts.iter().map(|(_, c)| c).collect();
+    Coverage::new(light, &refs, &StageLimits::default())
+}
+
+/// The appliance's light check of `frames` over the parts of [`Certificate::to_shared_parts`]:
+/// every lit pixel vouched for by `coverage` (of the whole certificate), and the peak of the
+/// per-point sums, parts in parallel: the peak of the whole is the largest of the parts'
+/// peaks (the sums are a maximum over independent points), the first on ties; any error is
+/// the result. The bound is the caller's to apply.
 pub fn independent_peak_parts(
     light: &LightModel,
     parts: &[(u32, LightCertificate)],
+    coverage: &Coverage,
     frames: &[image::RgbImage],
 ) -> Result<PeakIrradiance, LightError> {
     let xrgb: Vec<Vec<u8>> = frames.par_iter().map(|f| xrgb_from_rgb(f.as_raw())).collect();
@@ -255,6 +270,9 @@ pub fn independent_peak_parts(
         .zip(&xrgb)
         .map(|(f, x)| XrgbFrame { width: f.width(), height: f.height(), xrgb: x })
         .collect();
+    for (k, v) in views.iter().enumerate() {
+        coverage.check_frame("compensation", k, *v)?;
+    }
     let peaks: Vec<Result<PeakIrradiance, LightError>> = parts
         .par_iter()
         .map(|(first, cert)| {
@@ -288,7 +306,9 @@ pub fn light_model(stage: &StageModel, e_bound_lux: f64, margin: f64, ambient_lu
     }
 }
 
-/// The appliance's independent check (`restage_shared::light::max_irradiance`) of `frames`.
+/// The appliance's independent check of `frames` against the whole certificate, with its
+/// default stage limits: every lit pixel vouched for, then the peak of the per-point sums
+/// (the bound is the caller's to apply).
 pub fn independent_peak(
     light: &LightModel,
     cert: &LightCertificate,
@@ -300,5 +320,9 @@ pub fn independent_peak(
         .zip(&xrgb)
         .map(|(f, x)| XrgbFrame { width: f.width(), height: f.height(), xrgb: x })
         .collect();
+    let coverage = Coverage::new(light, &[cert], &StageLimits::default())?;
+    for (k, v) in views.iter().enumerate() {
+        coverage.check_frame("compensation", k, *v)?;
+    }
     max_irradiance(light, cert, &views)
 }

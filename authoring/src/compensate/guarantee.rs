@@ -7,6 +7,7 @@
 
 use image::RgbImage;
 use rayon::prelude::*;
+use restage_shared::light::Coverage;
 
 use super::certificate::Certificate;
 use super::response::InverseResponse;
@@ -161,4 +162,28 @@ pub fn enforce(
             .sum();
         report.dimmed_pixels += dimmed;
     }
+}
+
+/// Sets to black every lit pixel the certificate does not vouch for in the appliance's light
+/// check (`Coverage`): pixels outside every block (none, by construction: a point's block holds
+/// its splat support) or inside only blocks whose coefficient is under the appliance's floor
+/// (light that reaches only grazing points of a very far stage). Only lowers light, so the
+/// bound still holds. Returns how many pixels it changed.
+pub fn darken_unvouched(coverage: &Coverage, frames: &mut [RgbImage]) -> usize {
+    frames
+        .par_iter_mut()
+        .enumerate()
+        .map(|(k, frame)| {
+            let w = frame.width();
+            let mut n = 0;
+            for (i, px) in frame.pixels_mut().enumerate() {
+                let (x, y) = (i as u32 % w, i as u32 / w);
+                if px.0 != [0; 3] && !coverage.is_vouched(k, x, y) {
+                    px.0 = [0; 3];
+                    n += 1;
+                }
+            }
+            n
+        })
+        .sum()
 }

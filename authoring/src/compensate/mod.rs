@@ -153,6 +153,9 @@ pub struct Stats {
     pub scale: f64,
     pub rounds: u32,
     pub dimmed_pixels: usize,
+    /// Lit pixels set black because the certificate could not vouch for them in the
+    /// appliance's light check (`restage_shared::light::Coverage`); 0 in practice.
+    pub unvouched_pixels: usize,
 }
 
 /// The result: frames and what is needed to report on them.
@@ -317,10 +320,20 @@ pub fn compensate_on(
         .collect();
     let peak_lux = enf.lux.iter().copied().fold(0.0, f64::max);
     // The appliance's own check, written independently of ours, must agree before anything
-    // leaves this function.
+    // leaves this function: first its coverage test (lit pixels the certificate cannot vouch
+    // for go black), then the whole check.
     let light = certificate::light_model(stage, params.e_bound_lux, params.margin, room);
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: enforce done");
-    let independent = certificate::independent_peak_parts(&light, &prep.shared_parts, &frames)
+    let coverage = certificate::coverage_of_parts(&light, &prep.shared_parts)
+        .map_err(CompensateError::IndependentCheck)?;
+    let unvouched = guarantee::darken_unvouched(&coverage, &mut frames);
+    if unvouched > 0 {
+        tracing::warn!(
+            pixels = unvouched,
+            "compensation: lit pixels the certificate cannot vouch for set black"
+        );
+    }
+    let independent = certificate::independent_peak_parts(&light, &prep.shared_parts, &coverage, &frames)
         .and_then(|peak| check_bound(&light, "compensation", &peak).map(|()| peak))
         .map_err(CompensateError::IndependentCheck)?;
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: independent check done");
@@ -354,6 +367,7 @@ pub fn compensate_on(
             scale,
             rounds: enf.rounds,
             dimmed_pixels: enf.dimmed_pixels,
+            unvouched_pixels: unvouched,
         },
     })
 }

@@ -150,6 +150,32 @@ fn result_does_not_depend_on_thread_count() {
     assert_eq!(run(1), run(2));
 }
 
+#[test]
+fn pixels_the_certificate_cannot_vouch_for_go_black() {
+    use restage_shared::light::{
+        CertificateMap, Coverage, Footprint, LightCertificate, StageLimits, example_light_model,
+    };
+    let light = example_light_model(1, 100.0);
+    // Columns 0-1 in a block with a plausible coefficient, column 2 (row 0) only in one under
+    // the floor, column 3 in none.
+    let footprints = vec![
+        Footprint { x0: 0, y0: 0, x1: 2, y1: 2, lux_per_unit: 1.0 },
+        Footprint { x0: 2, y0: 0, x1: 3, y1: 1, lux_per_unit: 1e-6 },
+    ];
+    let cert = LightCertificate {
+        points: 2,
+        point_px: vec![],
+        projectors: vec![CertificateMap { width: 4, height: 2, footprints }],
+    };
+    let coverage = Coverage::new(&light, &[&cert], &StageLimits::default()).unwrap();
+    let mut frames = vec![RgbImage::from_pixel(4, 2, image::Rgb([9, 0, 200]))];
+    frames[0].put_pixel(3, 1, image::Rgb([0, 0, 0]));
+    assert_eq!(guarantee::darken_unvouched(&coverage, &mut frames), 3);
+    for (x, _, p) in frames[0].enumerate_pixels() {
+        assert_eq!(p.0 != [0; 3], x < 2);
+    }
+}
+
 fn arb_exponent() -> impl Strategy<Value = Exponent> {
     prop_oneof![(0.0..12.0f64).prop_map(Exponent::Finite), Just(Exponent::Infinite)]
 }
@@ -184,13 +210,17 @@ proptest! {
         let p = Params { e_bound_lux: e_bound, m, margin, clip_fraction: clip, reduction };
         let c = compensate(&s.model, &t, &p).unwrap();
         prop_assert!(c.stats.peak_lux <= p.limit());
+        // Every lit pixel lies in its point's block, with a plausible coefficient: nothing
+        // had to be set black for the appliance's coverage test.
+        prop_assert_eq!(c.stats.unvouched_pixels, 0);
         // The appliance's independent check agrees (compensate already refuses otherwise;
         // checked here again from the outside).
         let prep = Prepared::new(&s.model, reduction).unwrap();
         let peak = certificate::independent_peak(&c.light, &prep.certificate.to_shared(), &c.frames).unwrap();
         prop_assert!(peak.lux <= p.limit(), "independent peak {} > {}", peak.lux, p.limit());
         // The parallel check over certificate parts finds exactly the whole's peak.
-        let parts = certificate::independent_peak_parts(&c.light, &prep.shared_parts, &c.frames).unwrap();
+        let coverage = certificate::coverage_of_parts(&c.light, &prep.shared_parts).unwrap();
+        let parts = certificate::independent_peak_parts(&c.light, &prep.shared_parts, &coverage, &c.frames).unwrap();
         prop_assert_eq!(parts.lux, peak.lux);
         prop_assert_eq!(parts.point, peak.point);
         let tp = true_peak(&s, &c.frames);

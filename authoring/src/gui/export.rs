@@ -132,6 +132,8 @@ pub fn write_and_verify(project: &Project, settings: &Settings) -> Result<String
         trust,
         now: None,
         accepted_version: None,
+        max_throw_m: restage_shared::light::DEFAULT_MAX_THROW_M,
+        min_cos: restage_shared::light::DEFAULT_MIN_COS,
     })?;
     Ok(format!("wrote {}\n{}{verified}", out.display(), restage_shared::bundle::describe(&manifest, None)))
 }

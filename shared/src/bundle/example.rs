@@ -1,10 +1,11 @@
 //! Synthetic bundles for tests, the benchmark and the fuzzer: flat geometry (certificate
 //! point `(u, v)` is lit by the same spot of every projector), smooth frames with a little
 //! texture, and a certificate whose coefficients the caller picks so a scene lands under or
-//! over the bound on purpose.
+//! over the bound on purpose; and correctly signed bundles whose certificate or light model
+//! lies ([`lying_writer`]), which the light check must refuse.
 
 use super::{BundleInfo, BundleWriter, ObjectInfo, PixelFormat, Projector, SceneKind};
-use crate::light::{CertificateMap, Footprint, LightCertificate, example_light_model};
+use crate::light::{CertificateMap, Footprint, LightCertificate, RESPONSE_LEVELS, example_light_model};
 use crate::policy::{ExposurePolicy, Sensitivity};
 
 /// Shape of a synthetic bundle.
@@ -125,6 +126,95 @@ pub fn example_writer(spec: &ExampleSpec) -> BundleWriter {
             (format!("restored-{s}"), SceneKind::Restoration)
         };
         w.add_scene(&id, &id, kind, frames).expect("example frames fit");
+    }
+    w
+}
+
+/// Ways a signed bundle can lie about its light so that a bright scene is charged little or
+/// nothing: what the light check must refuse.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Lie {
+    /// Every coefficient `L_ik` is 0.
+    ZeroCoefficients,
+    /// Every coefficient is a positive speck (1e-9 lx per unit), under any plausible floor.
+    TinyCoefficients,
+    /// Every block is empty: "no projector reaches any point".
+    EmptyBlocks,
+    /// One point has a single-pixel block; every other block is empty.
+    OnePixelBlock,
+    /// Every response curve is all zeros.
+    ZeroResponses,
+    /// Response curves are 0 below 255 and 1 at 255: full white honest, the rest free.
+    ResponsesOnlyAtFull,
+}
+
+impl Lie {
+    pub const ALL: [Lie; 6] = [
+        Lie::ZeroCoefficients,
+        Lie::TinyCoefficients,
+        Lie::EmptyBlocks,
+        Lie::OnePixelBlock,
+        Lie::ZeroResponses,
+        Lie::ResponsesOnlyAtFull,
+    ];
+}
+
+/// The manifest fields and certificate of [`lying_writer`]'s bundle.
+pub fn lying_parts(spec: &ExampleSpec, lie: Lie) -> (BundleInfo, LightCertificate) {
+    let mut info = example_info(spec);
+    let mut cert = example_certificate(spec);
+    let every = |cert: &mut LightCertificate, f: &mut dyn FnMut(usize, &mut Footprint)| {
+        for m in &mut cert.projectors {
+            for (i, fp) in m.footprints.iter_mut().enumerate() {
+                f(i, fp);
+            }
+        }
+    };
+    match lie {
+        Lie::ZeroCoefficients => every(&mut cert, &mut |_, f| f.lux_per_unit = 0.0),
+        Lie::TinyCoefficients => every(&mut cert, &mut |_, f| f.lux_per_unit = 1e-9),
+        Lie::EmptyBlocks => every(&mut cert, &mut |_, f| *f = Footprint::default()),
+        Lie::OnePixelBlock => every(&mut cert, &mut |i, f| {
+            *f = if i == 0 {
+                Footprint { x0: 0, y0: 0, x1: 1, y1: 1, lux_per_unit: spec.lux_per_unit }
+            } else {
+                Footprint::default()
+            }
+        }),
+        Lie::ZeroResponses => {
+            for p in &mut info.light.projectors {
+                p.response = std::array::from_fn(|_| vec![0.0; RESPONSE_LEVELS]);
+            }
+        }
+        Lie::ResponsesOnlyAtFull => {
+            for p in &mut info.light.projectors {
+                p.response = std::array::from_fn(|_| {
+                    (0..RESPONSE_LEVELS).map(|v| if v == RESPONSE_LEVELS - 1 { 1.0 } else { 0.0 }).collect()
+                });
+            }
+        }
+    }
+    (info, cert)
+}
+
+/// The scenes of [`lying_writer`]: "original" at 254 grey, "white" at full white, XRGB.
+pub fn lying_frames(spec: &ExampleSpec) -> [(&'static str, Vec<Vec<u8>>); 2] {
+    let len = (spec.width * spec.height * 4) as usize;
+    let frame = |v: u8| (0..len).map(|i| if i % 4 == 3 { 0 } else { v }).collect::<Vec<u8>>();
+    let frames = |v| (0..spec.projectors).map(|_| frame(v)).collect();
+    [("original", frames(254)), ("white", frames(255))]
+}
+
+/// Full-white frames (and a 254-grey scene) under a certificate or light model that lies as
+/// `lie` says; the writer's own light check is off, so the bundle is correctly signed and
+/// only the reader's check stands between it and the projectors. With honest data these
+/// scenes are within the bound (`spec` as [`ExampleSpec::small`]).
+pub fn lying_writer(spec: &ExampleSpec, lie: Lie) -> BundleWriter {
+    let (info, cert) = lying_parts(spec, lie);
+    let mut w = BundleWriter::new(info, cert).skip_bound_check_for_test_fixtures();
+    for (id, frames) in lying_frames(spec) {
+        let kind = if id == "original" { SceneKind::Original } else { SceneKind::Restoration };
+        w.add_scene(id, id, kind, frames).expect("frames fit");
     }
     w
 }

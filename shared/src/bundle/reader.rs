@@ -1,9 +1,10 @@
 //! Streaming verification of a bundle. [`BundleReader::open`] checks the header, the
 //! manifest's signature, validity times and rollback before anything else is read;
 //! [`BundleReader::verify`] then reads one section at a time, checks its hash before
-//! decompressing or decoding it, and recomputes every scene's peak irradiance from the
-//! certificate. Memory: the manifest, the certificate, one scene's per-point sums and one
-//! section (stored and decompressed) at a time.
+//! decompressing or decoding it, and runs the light check on every scene (the certificate
+//! must vouch for every lit pixel; the peak irradiance is recomputed from it). Memory: the
+//! manifest, the certificate, its coverage maps (a byte per projector pixel), one scene's
+//! per-point sums and one section (stored and decompressed) at a time.
 
 use std::io::{Read, Seek, SeekFrom};
 
@@ -14,18 +15,21 @@ use super::{
     SIGNATURE_BLOCK_LEN, Section, SectionKind,
 };
 use crate::keys::{KEY_ID_LEN, KeyId, TrustStore};
-use crate::light::{LightCertificate, PeakIrradiance, SceneIrradiance, XrgbFrame, check_bound};
+use crate::light::{LightCertificate, LightCheck, PeakIrradiance, StageLimits, XrgbFrame};
 
-/// Size caps applied before allocating.
+/// Size caps applied before allocating, and the reader's own assumptions about the stage.
 #[derive(Clone, Copy, Debug)]
 pub struct Limits {
     pub max_manifest: u64,
     pub max_section: u64,
+    /// Bounds the light check holds certificates' coefficients to (the appliance's, never
+    /// the bundle's).
+    pub stage: StageLimits,
 }
 
 impl Default for Limits {
     fn default() -> Self {
-        Self { max_manifest: MAX_MANIFEST_LEN, max_section: MAX_SECTION_LEN }
+        Self { max_manifest: MAX_MANIFEST_LEN, max_section: MAX_SECTION_LEN, stage: StageLimits::default() }
     }
 }
 
@@ -68,6 +72,7 @@ pub struct BundleReader<R> {
     offsets: Vec<u64>,
     file_len: u64,
     authenticated: bool,
+    stage: StageLimits,
 }
 
 /// A section whose hash was checked, decompressed. Callers keep it (e.g. copy a frame into
@@ -87,7 +92,8 @@ pub struct VerifiedBundle<R> {
     pub manifest: Manifest,
     pub certificate: LightCertificate,
     /// Per scene, in manifest order: the peak irradiance recomputed from the certificate,
-    /// already checked against the bound. Charge exposure at these values.
+    /// already checked against the bound (and every lit pixel against the certificate's
+    /// coverage). Charge exposure at these values.
     pub peaks: Vec<PeakIrradiance>,
     /// BLAKE3 of the manifest bytes: identifies the exact bundle (two different bundles
     /// with one version have different hashes).
@@ -245,7 +251,16 @@ impl<R: Read + Seek> BundleReader<R> {
             return Err(BundleError::TrailingBytes { extra: file_len - at });
         }
         let manifest_hash = *blake3::hash(manifest_bytes).as_bytes();
-        Ok(Self { src, manifest, manifest_hash, key_id, offsets, file_len, authenticated: auth.is_some() })
+        Ok(Self {
+            src,
+            manifest,
+            manifest_hash,
+            key_id,
+            offsets,
+            file_len,
+            authenticated: auth.is_some(),
+            stage: limits.stage,
+        })
     }
 
     /// The verified manifest (signature, validity and version already checked).
@@ -254,9 +269,10 @@ impl<R: Read + Seek> BundleReader<R> {
     }
 
     /// Reads every section in order, checks its hash, decompresses it, passes it to `keep`,
-    /// decodes and checks the certificate, and refuses any scene whose recomputed peak
-    /// irradiance exceeds the light model's allowed lux. Returns the verified bundle only
-    /// if everything passed.
+    /// decodes and checks the certificate, and refuses any scene that lights a pixel the
+    /// certificate does not vouch for or whose recomputed peak irradiance exceeds the light
+    /// model's allowed lux ([`LightCheck`], with the stage limits given to `open`). Returns
+    /// the verified bundle only if everything passed.
     pub fn verify<F>(mut self, mut keep: F) -> Result<VerifiedBundle<R>, BundleError>
     where
         F: FnMut(VerifiedSection<'_>) -> Result<(), BundleError>,
@@ -279,9 +295,11 @@ impl<R: Read + Seek> BundleReader<R> {
         certificate.validate_for(&m.light, &sizes)?;
         keep(VerifiedSection { index: 0, kind: m.sections[0].kind, bytes })?;
 
+        // Coverage maps built once for every scene.
+        let check = LightCheck::new(&m.light, &certificate, &self.stage)?;
         let mut peaks = Vec::with_capacity(m.scenes.len());
         for (s, scene) in m.scenes.iter().enumerate() {
-            let mut acc = SceneIrradiance::new(&m.light, &certificate)?;
+            let mut acc = check.scene(&scene.id);
             for (k, p) in m.projectors.iter().enumerate() {
                 let i = m.frame_section_index(s, k);
                 read(&mut self.src, i, &mut stored, &mut raw)?;
@@ -289,10 +307,9 @@ impl<R: Read + Seek> BundleReader<R> {
                 acc.add(k, XrgbFrame { width: p.width, height: p.height, xrgb: bytes })?;
                 keep(VerifiedSection { index: i, kind: m.sections[i].kind, bytes })?;
             }
-            let peak = acc.finish()?;
-            check_bound(&m.light, &scene.id, &peak)?;
-            peaks.push(peak);
+            peaks.push(acc.finish()?);
         }
+        drop(check);
         for i in m.frame_section_index(m.scenes.len(), 0)..m.sections.len() {
             read(&mut self.src, i, &mut stored, &mut raw)?;
             let bytes = section_bytes(&m.sections[i], &stored, &raw);
@@ -447,6 +464,57 @@ mod tests {
         std::fs::write(&path, &bytes).unwrap();
         assert!(matches!(v.read_frame(1, 1), Err(BundleError::Changed { .. })));
         v.read_frame(0, 0).unwrap();
+    }
+
+    /// Each lying certificate or light model, correctly signed, is refused with the error
+    /// that names what is wrong, though the per-point sums alone (the check before coverage)
+    /// put its full-white scene within the bound.
+    #[test]
+    fn lying_certificates_are_refused() {
+        use crate::bundle::example::{Lie, lying_frames, lying_parts, lying_writer};
+        use crate::light::{LightError, XrgbFrame, max_irradiance};
+        let (key, trust) = trust();
+        let spec = ExampleSpec::small();
+        let honest = crate::bundle::example::example_info(&spec).light;
+        for lie in Lie::ALL {
+            let (info, cert) = lying_parts(&spec, lie);
+            if info.light == honest {
+                let [_, (_, white)] = lying_frames(&spec);
+                let views: Vec<XrgbFrame> = white
+                    .iter()
+                    .map(|f| XrgbFrame { width: spec.width, height: spec.height, xrgb: f })
+                    .collect();
+                let sums = max_irradiance(&info.light, &cert, &views).unwrap();
+                // The check before coverage would have let this full-white scene through.
+                assert!(sums.lux <= info.light.allowed_lux(), "{lie:?}: {sums:?}");
+            }
+            let mut bytes = Vec::new();
+            lying_writer(&spec, lie).write(&key, &mut bytes).unwrap();
+            let err = BundleReader::open(Cursor::new(bytes), &trust, &VerifyOptions::at(1_800_000_000))
+                .and_then(|r| r.verify(|_| Ok(())))
+                .unwrap_err();
+            let BundleError::Light(e) = &err else { panic!("{lie:?}: {err}") };
+            let named = match lie {
+                Lie::ZeroCoefficients => {
+                    matches!(e, LightError::ZeroCoefficient { projector: 0, point: 0, .. })
+                }
+                Lie::TinyCoefficients => matches!(
+                    e, LightError::UnderStated { scene, projector: 0, x: 0, y: 0, rgb: [254, 254, 254], .. }
+                    if scene == "original"
+                ),
+                Lie::EmptyBlocks => matches!(
+                    e, LightError::Uncovered { scene, projector: 0, x: 0, y: 0, .. } if scene == "original"
+                ),
+                Lie::OnePixelBlock => matches!(
+                    e, LightError::Uncovered { scene, projector: 0, x: 1, y: 0, .. } if scene == "original"
+                ),
+                Lie::ZeroResponses => matches!(e, LightError::ResponseShort { projector: 0, channel: 0, .. }),
+                Lie::ResponsesOnlyAtFull => {
+                    matches!(e, LightError::ResponseImplausible { projector: 0, channel: 0, .. })
+                }
+            };
+            assert!(named, "{lie:?}: {err}");
+        }
     }
 
     #[test]

@@ -12,7 +12,7 @@ use super::{
     ObjectInfo, Projector, SIGNATURE_BLOCK_LEN, Scene, SceneKind, Section, SectionKind,
 };
 use crate::keys::KeyId;
-use crate::light::{LightCertificate, LightModel, XrgbFrame, check_bound, max_irradiance};
+use crate::light::{LightCertificate, LightCheck, LightModel, StageLimits, XrgbFrame};
 use crate::policy::ExposurePolicy;
 
 /// Everything in the manifest except scenes, sections and the key id.
@@ -67,8 +67,8 @@ impl BundleWriter {
         self
     }
 
-    /// Writes scenes without checking them against the bound. Only for making the refusal
-    /// fixtures that show the appliance's own check works; never for an exhibit.
+    /// Writes scenes without the light check (coverage and bound). Only for making the
+    /// refusal fixtures that show the appliance's own check works; never for an exhibit.
     pub fn skip_bound_check_for_test_fixtures(mut self) -> Self {
         self.check_bound = false;
         self
@@ -140,12 +140,14 @@ impl BundleWriter {
     }
 
     /// Checks, signs with `key` and writes the bundle to `out`. Returns the manifest
-    /// written. Refuses (before writing anything) a scene over the bound, an invalid
-    /// manifest, or a manifest over [`MAX_MANIFEST_LEN`].
+    /// written. Refuses (before writing anything) a scene the appliance's light check would
+    /// refuse with default [`StageLimits`] (a lit pixel the certificate does not vouch for,
+    /// or over the bound), an invalid manifest, or a manifest over [`MAX_MANIFEST_LEN`].
     pub fn write<W: Write>(self, key: &SigningKey, mut out: W) -> Result<Manifest, BundleError> {
         let sizes: Vec<(u32, u32)> = self.info.projectors.iter().map(|p| (p.width, p.height)).collect();
         self.certificate.validate_for(&self.info.light, &sizes)?;
         if self.check_bound {
+            let check = LightCheck::new(&self.info.light, &self.certificate, &StageLimits::default())?;
             for s in &self.scenes {
                 let frames: Vec<XrgbFrame> = s
                     .frames
@@ -153,8 +155,7 @@ impl BundleWriter {
                     .zip(&self.info.projectors)
                     .map(|(f, p)| XrgbFrame { width: p.width, height: p.height, xrgb: f })
                     .collect();
-                let peak = max_irradiance(&self.info.light, &self.certificate, &frames)?;
-                check_bound(&self.info.light, &s.id, &peak)?;
+                check.check_scene(&s.id, &frames)?;
             }
         }
         // Sections in canonical order; compressed copies kept only where smaller.
