@@ -452,6 +452,24 @@ pub struct XrgbFrame<'a> {
     pub xrgb: &'a [u8],
 }
 
+impl XrgbFrame<'_> {
+    /// Refuses a frame that is not `width` x `height` XRGB8888 (projector `k`'s size).
+    pub(crate) fn check_size(&self, k: usize, width: u32, height: u32) -> Result<(), LightError> {
+        let len = width as usize * height as usize * 4;
+        if self.width != width || self.height != height || self.xrgb.len() != len {
+            return Err(LightError::FrameSize {
+                projector: k,
+                got_w: self.width,
+                got_h: self.height,
+                got_len: self.xrgb.len(),
+                want_w: width,
+                want_h: height,
+            });
+        }
+        Ok(())
+    }
+}
+
 /// Converts tightly packed 8-bit RGB to XRGB8888 (X = 0).
 pub fn xrgb_from_rgb(rgb: &[u8]) -> Vec<u8> {
     let mut out = Vec::with_capacity(rgb.len() / 3 * 4);
@@ -522,17 +540,8 @@ impl<'a> SceneIrradiance<'a> {
         let Some(map) = self.cert.projectors.get(k) else {
             return Err(LightError::FrameCount { expected: self.cert.projectors.len(), got: k + 1 });
         };
-        let (w, h) = (map.width as usize, map.height as usize);
-        if frame.width != map.width || frame.height != map.height || frame.xrgb.len() != w * h * 4 {
-            return Err(LightError::FrameSize {
-                projector: k,
-                got_w: frame.width,
-                got_h: frame.height,
-                got_len: frame.xrgb.len(),
-                want_w: map.width,
-                want_h: map.height,
-            });
-        }
+        frame.check_size(k, map.width, map.height)?;
+        let w = map.width as usize;
         if std::mem::replace(&mut self.seen[k], true) {
             return Err(LightError::FrameTwice { projector: k });
         }

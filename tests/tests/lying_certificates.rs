@@ -35,17 +35,22 @@ fn lying_stage(lie: Lie) -> Stage {
     stage
 }
 
+/// The appliance binary's `verify` of the stage's active bundle.
+fn verify(stage: &Stage) -> std::process::Output {
+    Command::new(BIN)
+        .arg("verify")
+        .arg(stage.path("state/active.bundle"))
+        .arg("--trust")
+        .arg(stage.path("trust"))
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn appliance_verify_refuses_each_lying_certificate() {
     for lie in Lie::ALL {
         let stage = lying_stage(lie);
-        let o = Command::new(BIN)
-            .arg("verify")
-            .arg(stage.path("state/active.bundle"))
-            .arg("--trust")
-            .arg(stage.path("trust"))
-            .output()
-            .unwrap();
+        let o = verify(&stage);
         let out = format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr));
         assert!(!o.status.success(), "{lie:?} verified: {out}");
         assert!(out.contains("refused") && out.contains(expected(lie)), "{lie:?}: {out}");
@@ -53,13 +58,7 @@ fn appliance_verify_refuses_each_lying_certificate() {
     }
     // The same stage with its honest bundle verifies (the refusals are the lies').
     let stage = Stage::new(ExampleSpec::small());
-    let o = Command::new(BIN)
-        .arg("verify")
-        .arg(stage.path("state/active.bundle"))
-        .arg("--trust")
-        .arg(stage.path("trust"))
-        .output()
-        .unwrap();
+    let o = verify(&stage);
     assert!(o.status.success() && String::from_utf8_lossy(&o.stdout).contains("OK:"), "{o:?}");
 }
 

@@ -228,17 +228,8 @@ impl Coverage {
         let Some(p) = self.projectors.get(k) else {
             return Err(LightError::FrameCount { expected: self.projectors.len(), got: k + 1 });
         };
-        let (w, h) = (p.width as usize, p.height as usize);
-        if frame.width != p.width || frame.height != p.height || frame.xrgb.len() != w * h * 4 {
-            return Err(LightError::FrameSize {
-                projector: k,
-                got_w: frame.width,
-                got_h: frame.height,
-                got_len: frame.xrgb.len(),
-                want_w: p.width,
-                want_h: p.height,
-            });
-        }
+        frame.check_size(k, p.width, p.height)?;
+        let w = p.width as usize;
         // Bytes B, G, R, X: any colour byte above 0 is light above black.
         let bad = frame
             .xrgb
