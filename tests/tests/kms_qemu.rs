@@ -24,7 +24,6 @@ use std::time::{Duration, Instant};
 use qemu_common::{Boot, H, HEADS, MACHINE, W, field, spec, stamp_s};
 use restage_appliance::output::kms::xrgb8888_to_rgb8;
 use restage_shared::bundle::example::{ExampleSpec, example_frame};
-use restage_shared::policy::{ExposurePolicy, IdleMode};
 
 /// Length of a showing (the exposure timer), seconds.
 const SHOWING_S: u32 = 3;
@@ -36,14 +35,7 @@ fn payload(dir: &Path, atomic: bool) {
     qemu_common::write_trust(&dir.join("trust"));
     std::fs::create_dir_all(dir.join("state")).unwrap();
     let spec = spec();
-    let policy = ExposurePolicy {
-        max_showing_s: SHOWING_S,
-        cooldown_s: 0,
-        daily_budget_lxh: 1e6,
-        annual_budget_lxh: 1e7,
-        warn_at: vec![0.75, 0.9],
-        idle: IdleMode::Scene("original".into()),
-    };
+    let policy = qemu_common::policy(SHOWING_S);
     // The bundle played, and a newer one of a frame size no head offers.
     let odd = ExampleSpec { width: BAD_W, version: spec.version + 1, ..spec.clone() };
     qemu_common::write_bundle(&dir.join("state/active.bundle"), &spec, &policy);

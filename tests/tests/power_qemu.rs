@@ -42,7 +42,6 @@ use restage_appliance::ledger::{ExposureRow, Ledger};
 use restage_appliance::output::kms::frame_fingerprint;
 use restage_shared::bundle::example::{ExampleSpec, example_certificate, example_frame, example_info};
 use restage_shared::light::{LightCertificate, LightModel, XrgbFrame, max_irradiance};
-use restage_shared::policy::{ExposurePolicy, IdleMode};
 
 /// Rounds when `RESTAGE_POWER_CUTS` is not set: about 3 minutes on a 2-core machine.
 const DEFAULT_CUTS: usize = 20;
@@ -51,17 +50,6 @@ const OBJECT: &str = "test-jar-1";
 const SHOWING_S: u32 = 2;
 const SYNC_OFF: &str = "RESTAGE_TEST_ONLY_LEDGER_SYNCHRONOUS_OFF";
 const DISK_MB: u32 = 64;
-
-fn policy() -> ExposurePolicy {
-    ExposurePolicy {
-        max_showing_s: SHOWING_S,
-        cooldown_s: 0,
-        daily_budget_lxh: 1e6,
-        annual_budget_lxh: 1e7,
-        warn_at: vec![0.75, 0.9],
-        idle: IdleMode::Scene("original".into()),
-    }
-}
 
 /// The initramfs's payload (trust key, config) and the disk's first content (the bundle).
 /// Showings of 2 s, the last second a cross-fade (each fade frame takes the emulated CPU about
@@ -72,7 +60,7 @@ fn policy() -> ExposurePolicy {
 fn payload(dir: &Path, disk: &Path) {
     qemu_common::write_trust(&dir.join("trust"));
     std::fs::create_dir_all(disk).unwrap();
-    qemu_common::write_bundle(&disk.join("active.bundle"), &spec(), &policy());
+    qemu_common::write_bundle(&disk.join("active.bundle"), &spec(), &qemu_common::policy(SHOWING_S));
     let config = "trust_dir = \"/restage/trust\"\nstate_dir = \"/var/lib/restage\"\n\
                   [player]\nfade_ms = 1000\nfade_fps = 10\nmin_press_interval_ms = 100\n\
                   [ledger]\nreserve_ms = 2500\nrenew_ahead_ms = 2000\n\

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use restage_shared::bundle::example::{ExampleSpec, example_certificate, example_frame, example_info};
 use restage_shared::bundle::{BundleWriter, SceneKind};
 use restage_shared::keys::{public_key_to_pem, signing_key_from_seed};
-use restage_shared::policy::ExposurePolicy;
+use restage_shared::policy::{ExposurePolicy, IdleMode};
 
 pub const W: u32 = 640;
 pub const H: u32 = 480;
@@ -38,6 +38,19 @@ pub fn write_trust(dir: &Path) {
     std::fs::create_dir_all(dir).unwrap();
     let key = signing_key_from_seed([7; 32]);
     std::fs::write(dir.join("test.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
+}
+
+/// The emulated machines' policy: showings of `showing_s`, no cooldown, budgets that never
+/// run out, idle on the original scene.
+pub fn policy(showing_s: u32) -> ExposurePolicy {
+    ExposurePolicy {
+        max_showing_s: showing_s,
+        cooldown_s: 0,
+        daily_budget_lxh: 1e6,
+        annual_budget_lxh: 1e7,
+        warn_at: vec![0.75, 0.9],
+        idle: IdleMode::Scene("original".into()),
+    }
 }
 
 /// Writes a signed bundle of `spec` (the scenes of `SCENES`) with `policy` to `file`.
