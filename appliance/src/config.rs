@@ -7,6 +7,9 @@ use restage_shared::light::StageLimits;
 use serde::Deserialize;
 use thiserror::Error;
 
+use crate::hours::{Hours, HoursConfig, HoursError};
+use crate::zone::{LocalZone, ZoneError};
+
 #[derive(Debug, Error)]
 pub enum ConfigError {
     #[error("config {path}: cannot read: {source}")]
@@ -15,6 +18,10 @@ pub enum ConfigError {
     Parse { path: PathBuf, message: String },
     #[error("config {path}: {key} = {value} (expected {expected})")]
     Range { path: PathBuf, key: &'static str, value: String, expected: &'static str },
+    #[error("config {path}: time_zone: {source}")]
+    Zone { path: PathBuf, source: ZoneError },
+    #[error("config {path}: {source}")]
+    Hours { path: PathBuf, source: HoursError },
 }
 
 /// The whole configuration file.
@@ -35,6 +42,19 @@ pub struct Config {
     /// of the first bundle it accepts (recorded in the ledger); set it to move to another.
     #[serde(default)]
     pub object_id: Option<String>,
+    /// The stage's IANA time zone, e.g. "Europe/Amsterdam": local days of the daily budget
+    /// and the opening hours follow it, daylight saving included. Default "UTC".
+    #[serde(default)]
+    pub time_zone: Option<String>,
+    /// Opening hours (`hours::HoursConfig`); absent: always open.
+    #[serde(default)]
+    pub hours: Option<HoursConfig>,
+    /// `time_zone` (or the deprecated fixed offset) resolved at load.
+    #[serde(skip)]
+    zone: LocalZone,
+    /// `hours` resolved at load.
+    #[serde(skip)]
+    opening_hours: Hours,
     #[serde(default)]
     pub player: PlayerConfig,
     #[serde(default)]
@@ -108,9 +128,10 @@ pub struct LedgerConfig {
     /// Longest wait for another process's lock on the ledger, ms (10..=1000). Light never
     /// waits longer: a lock held past it is a ledger fault (dark, retried). Default 100.
     pub busy_timeout_ms: u64,
-    /// Offset of local time from UTC in minutes (-840..=840); days of the daily budget begin
-    /// at local midnight. Default 0.
-    pub utc_offset_minutes: i32,
+    /// Deprecated: a fixed offset of local time from UTC in minutes (-840..=840), no
+    /// daylight saving. Still read from old files (logged); refused together with
+    /// `time_zone`, which replaces it.
+    pub utc_offset_minutes: Option<i32>,
 }
 
 impl Default for LedgerConfig {
@@ -120,7 +141,7 @@ impl Default for LedgerConfig {
             renew_ahead_ms: 15_000,
             light_off_latency_ms: 100,
             busy_timeout_ms: 100,
-            utc_offset_minutes: 0,
+            utc_offset_minutes: None,
         }
     }
 }
@@ -276,10 +297,60 @@ impl Config {
 
     /// Parses and checks configuration text; `path` names it in errors.
     pub fn parse(text: &str, path: &Path) -> Result<Config, ConfigError> {
-        let config: Config = toml::from_str(text)
+        let mut config: Config = toml::from_str(text)
             .map_err(|e| ConfigError::Parse { path: path.to_path_buf(), message: e.to_string() })?;
         config.check(path)?;
+        config.resolve_time(path)?;
         Ok(config)
+    }
+
+    /// The stage's time zone (checked at load).
+    pub fn local_zone(&self) -> &LocalZone {
+        &self.zone
+    }
+
+    /// The opening hours in the stage's time zone (checked at load; always open without an
+    /// `[hours]` section).
+    pub fn opening_hours(&self) -> &Hours {
+        &self.opening_hours
+    }
+
+    /// Resolves `time_zone` (or the deprecated `ledger.utc_offset_minutes`) and `[hours]`.
+    fn resolve_time(&mut self, path: &Path) -> Result<(), ConfigError> {
+        let path = path.to_path_buf();
+        self.zone = match (&self.time_zone, self.ledger.utc_offset_minutes) {
+            (Some(_), Some(m)) => {
+                return Err(ConfigError::Range {
+                    path,
+                    key: "ledger.utc_offset_minutes",
+                    value: m.to_string(),
+                    expected: "unset when time_zone is set (time_zone replaces it)",
+                });
+            }
+            (Some(name), None) => {
+                LocalZone::named(name).map_err(|source| ConfigError::Zone { path: path.clone(), source })?
+            }
+            (None, Some(m)) => {
+                let zone = LocalZone::fixed_offset_minutes(m).map_err(|_| ConfigError::Range {
+                    path: path.clone(),
+                    key: "ledger.utc_offset_minutes",
+                    value: m.to_string(),
+                    expected: "-840..=840",
+                })?;
+                tracing::warn!(
+                    "config {}: ledger.utc_offset_minutes is deprecated (a fixed offset, no daylight saving); \
+                     set time_zone = \"Area/City\" instead",
+                    path.display()
+                );
+                zone
+            }
+            (None, None) => LocalZone::utc(),
+        };
+        self.opening_hours = match &self.hours {
+            Some(h) => h.build(&self.zone).map_err(|source| ConfigError::Hours { path, source })?,
+            None => Hours::always_open(self.zone.clone()),
+        };
+        Ok(())
     }
 
     /// The bundle path: the configured one, or `STATE_DIR/active.bundle`.
@@ -332,9 +403,6 @@ impl Config {
             && (o.is_empty() || o.len() > 200 || o.chars().any(char::is_control))
         {
             return Err(range("object_id", format!("{o:?}"), "1..=200 printable characters"));
-        }
-        if !(-840..=840).contains(&l.utc_offset_minutes) {
-            return Err(range("ledger.utc_offset_minutes", l.utc_offset_minutes.to_string(), "-840..=840"));
         }
         let lc = &self.light_check;
         if !(lc.max_throw_m.is_finite() && lc.max_throw_m > 0.0 && lc.max_throw_m <= 1000.0) {
@@ -435,6 +503,52 @@ mod tests {
                     [output]\nkind = \"headless\"\ndir = \"/r\"\n";
         let e = Config::parse(text, Path::new("c.toml")).unwrap_err().to_string();
         assert!(e.contains("ledger.reserve_ms"), "{e}");
+    }
+
+    const BASE: &str = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n";
+    const WINDOW: &str = "[output]\nkind = \"window\"\n";
+
+    #[test]
+    fn time_zone_defaults_to_utc_and_names_a_bad_value() {
+        let c = Config::parse(&format!("{BASE}{WINDOW}"), Path::new("c.toml")).unwrap();
+        assert_eq!(c.local_zone(), &LocalZone::utc());
+        assert!(c.opening_hours().at(0).open);
+        let c =
+            Config::parse(&format!("{BASE}time_zone = \"America/New_York\"\n{WINDOW}"), Path::new("c.toml"))
+                .unwrap();
+        assert_eq!(c.local_zone().name(), "America/New_York");
+        let e = Config::parse(&format!("{BASE}time_zone = \"Mars/Olympus\"\n{WINDOW}"), Path::new("c.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("c.toml") && e.contains("time_zone") && e.contains("Mars/Olympus"), "{e}");
+    }
+
+    #[test]
+    fn the_old_fixed_offset_is_read_but_not_with_a_time_zone() {
+        let old = format!("{BASE}[ledger]\nutc_offset_minutes = 60\n{WINDOW}");
+        let c = Config::parse(&old, Path::new("c.toml")).unwrap();
+        assert_eq!(c.local_zone(), &LocalZone::fixed_offset_minutes(60).unwrap());
+        let both =
+            format!("{BASE}time_zone = \"Europe/Amsterdam\"\n[ledger]\nutc_offset_minutes = 60\n{WINDOW}");
+        let e = Config::parse(&both, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("ledger.utc_offset_minutes") && e.contains("time_zone"), "{e}");
+        let far = format!("{BASE}[ledger]\nutc_offset_minutes = 900\n{WINDOW}");
+        let e = Config::parse(&far, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("ledger.utc_offset_minutes") && e.contains("-840..=840"), "{e}");
+    }
+
+    #[test]
+    fn opening_hours_are_checked_at_load() {
+        let text =
+            format!("{BASE}time_zone = \"Europe/Amsterdam\"\n[hours]\nmon = [\"10:00-09:00\"]\n{WINDOW}");
+        let e = Config::parse(&text, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.starts_with("config c.toml: hours.mon = \"10:00-09:00\""), "{e}");
+        let text = format!("{BASE}[hours]\nmonday = [\"10:00-17:00\"]\n{WINDOW}");
+        let e = Config::parse(&text, Path::new("c.toml")).unwrap_err().to_string();
+        assert!(e.contains("monday"), "{e}");
+        let c = Config::parse(EXAMPLE, Path::new("example.toml")).unwrap();
+        assert!(c.opening_hours().is_scheduled());
+        assert_eq!(c.local_zone().name(), "Europe/Amsterdam");
     }
 
     #[test]

@@ -20,6 +20,7 @@ use serde::Serialize;
 use thiserror::Error;
 
 use crate::player::{Accountant, LeaseId, LightKind, Refusal};
+use crate::zone::LocalZone;
 
 /// Schema versions, in order; `MIGRATIONS[i]` takes `user_version` i to i+1.
 const MIGRATIONS: &[&str] = &[
@@ -200,6 +201,10 @@ pub struct LedgerStatus {
     pub active: Option<ActiveBundle>,
     /// Local calendar day (YYYY-MM-DD) the daily figures are for.
     pub day: String,
+    /// The zone local days are kept in (IANA name, or "UTC+01" for a fixed offset).
+    pub time_zone: String,
+    /// The status's time, local, e.g. "2026-03-29 10:15 CEST".
+    pub now_local: String,
     pub day_used_lux_hours: f64,
     pub day_left_lux_hours: Option<f64>,
     pub year_used_lux_hours: f64,
@@ -217,7 +222,8 @@ pub struct LedgerStatus {
 pub struct Ledger {
     conn: Connection,
     path: PathBuf,
-    utc_offset_minutes: i32,
+    /// Local days (the daily budget) begin at this zone's midnight.
+    zone: LocalZone,
     /// Object and budgets in force (set when a bundle is activated); no light without them.
     active: Option<(String, Budgets)>,
 }
@@ -225,10 +231,10 @@ pub struct Ledger {
 impl Ledger {
     /// Opens (creating if needed) the ledger at `path` and brings its schema up to date.
     /// Tools and tests; the stage opens its ledger with [`Ledger::open_stage`].
-    pub fn open(path: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+    pub fn open(path: &Path, zone: LocalZone) -> Result<Ledger, LedgerError> {
         let conn =
             Connection::open(path).map_err(|source| LedgerError::Open { path: path.into(), source })?;
-        Self::setup(conn, path, utc_offset_minutes, true)
+        Self::setup(conn, path, zone, true)
     }
 
     /// Opens the stage's ledger in `state_dir`, refusing to start a fresh one where the stage
@@ -236,7 +242,7 @@ impl Ledger {
     /// first opened here) names the ledger, so a ledger deleted, truncated or swapped for
     /// another (a restored backup) is refused rather than silently replaced. A first start
     /// creates both. (Deleting the guard too is an operator's act outside the appliance.)
-    pub fn open_stage(state_dir: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+    pub fn open_stage(state_dir: &Path, zone: LocalZone) -> Result<Ledger, LedgerError> {
         let path = state_dir.join(LEDGER_FILE);
         let guard = state_dir.join(GUARD_FILE);
         let has_ledger = std::fs::metadata(&path).is_ok_and(|m| m.len() > 0);
@@ -247,7 +253,7 @@ impl Ledger {
                 evidence: format!("{} names ledger {id}", guard.display()),
             });
         }
-        let ledger = Self::open(&path, utc_offset_minutes)?;
+        let ledger = Self::open(&path, zone)?;
         let id = ledger.ledger_id()?;
         match guard_id {
             Some(expected) if expected != id => {
@@ -267,7 +273,7 @@ impl Ledger {
     /// ledger and where the old file went.
     pub fn reset_acknowledged(
         state_dir: &Path,
-        utc_offset_minutes: i32,
+        zone: LocalZone,
         reason: &str,
         now_ms: i64,
     ) -> Result<(Ledger, Vec<PathBuf>), LedgerError> {
@@ -283,7 +289,7 @@ impl Ledger {
                 kept.push(to);
             }
         }
-        let mut ledger = Self::open(&path, utc_offset_minutes)?;
+        let mut ledger = Self::open(&path, zone)?;
         let id = ledger.ledger_id()?;
         let detail = format!(
             "ledger reset acknowledged by an operator: {reason}; previous ledger {}; old files kept: {}",
@@ -392,26 +398,21 @@ impl Ledger {
     }
 
     /// Opens an existing ledger read-only (for `status` while the appliance runs).
-    pub fn open_read_only(path: &Path, utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+    pub fn open_read_only(path: &Path, zone: LocalZone) -> Result<Ledger, LedgerError> {
         let conn = Connection::open_with_flags(path, OpenFlags::SQLITE_OPEN_READ_ONLY)
             .map_err(|source| LedgerError::Open { path: path.into(), source })?;
-        Self::setup(conn, path, utc_offset_minutes, false)
+        Self::setup(conn, path, zone, false)
     }
 
     /// A ledger in memory (tests).
-    pub fn open_in_memory(utc_offset_minutes: i32) -> Result<Ledger, LedgerError> {
+    pub fn open_in_memory(zone: LocalZone) -> Result<Ledger, LedgerError> {
         let path = Path::new(":memory:");
         let conn =
             Connection::open_in_memory().map_err(|source| LedgerError::Open { path: path.into(), source })?;
-        Self::setup(conn, path, utc_offset_minutes, true)
+        Self::setup(conn, path, zone, true)
     }
 
-    fn setup(
-        conn: Connection,
-        path: &Path,
-        utc_offset_minutes: i32,
-        write: bool,
-    ) -> Result<Ledger, LedgerError> {
+    fn setup(conn: Connection, path: &Path, zone: LocalZone, write: bool) -> Result<Ledger, LedgerError> {
         let sql = |source| LedgerError::Sql { path: path.into(), source };
         conn.busy_timeout(std::time::Duration::from_millis(TOOL_BUSY_MS)).map_err(sql)?;
         if write {
@@ -420,7 +421,7 @@ impl Ledger {
             conn.pragma_update(None, "journal_mode", "WAL").map_err(sql)?;
             conn.pragma_update(None, "synchronous", synchronous()).map_err(sql)?;
         }
-        let mut ledger = Ledger { conn, path: path.into(), utc_offset_minutes, active: None };
+        let mut ledger = Ledger { conn, path: path.into(), zone, active: None };
         ledger.migrate(write)?;
         if let Some(a) = ledger.active_bundle()? {
             ledger.active = Some((a.object, a.budgets));
@@ -632,14 +633,23 @@ impl Ledger {
 
     /// Start (unix ms) of the local day containing `t_ms`.
     pub fn day_start(&self, t_ms: i64) -> i64 {
-        let offset = i64::from(self.utc_offset_minutes) * 60_000;
-        (t_ms + offset).div_euclid(MS_PER_DAY) * MS_PER_DAY - offset
+        self.zone.day_start(t_ms)
+    }
+
+    /// The zone local days are kept in.
+    pub fn zone(&self) -> &LocalZone {
+        &self.zone
+    }
+
+    /// Lux-hours charged to `object` on the local day containing `t_ms` (23 or 25 hours
+    /// long on a daylight-saving change day).
+    fn day_used(&self, object: &str, t_ms: i64) -> Result<f64, LedgerError> {
+        let (start, end) = self.zone.day_bounds(t_ms);
+        self.used(object, start, end)
     }
 
     fn day_name(&self, t_ms: i64) -> String {
-        let offset = i64::from(self.utc_offset_minutes) * 60_000;
-        let (y, m, d) = civil_from_days((t_ms + offset).div_euclid(MS_PER_DAY));
-        format!("{y:04}-{m:02}-{d:02}")
+        self.zone.local_date(t_ms)
     }
 
     /// Would `extra_lux_ms` more, charged at `[from, until]`, fit both budgets?
@@ -649,8 +659,7 @@ impl Ledger {
         };
         let fail = |e: LedgerError| Refusal::Failed(e.to_string());
         let extra = extra_lux_ms / MS_PER_HOUR;
-        let day = self.day_start(from);
-        let day_used = self.used(object, day, day + MS_PER_DAY).map_err(fail)?;
+        let day_used = self.day_used(object, from).map_err(fail)?;
         if day_used + extra > b.daily_lux_hours {
             return Err(Refusal::Exhausted(format!(
                 "daily budget: {day_used:.4} of {:.4} lx·h used on {}, {extra:.4} more asked",
@@ -672,8 +681,7 @@ impl Ledger {
     /// the annual budget).
     fn warn_if_needed(&mut self, at: i64) -> Result<(), LedgerError> {
         let Some((object, b)) = self.active.clone() else { return Ok(()) };
-        let day = self.day_start(at);
-        let day_used = self.used(&object, day, day + MS_PER_DAY)?;
+        let day_used = self.day_used(&object, at)?;
         let year_used = self.used(&object, at - YEAR_MS, at)?;
         let week = at.div_euclid(7 * MS_PER_DAY);
         let checks = [
@@ -710,8 +718,7 @@ impl Ledger {
     pub fn status(&self, now_ms: i64) -> Result<LedgerStatus, LedgerError> {
         let active = self.active_bundle()?;
         let object = active.as_ref().map(|a| a.object.clone()).unwrap_or_default();
-        let day = self.day_start(now_ms);
-        let day_used = self.used(&object, day, day + MS_PER_DAY)?;
+        let day_used = self.day_used(&object, now_ms)?;
         let year_used = self.used(&object, now_ms - YEAR_MS, now_ms)?;
         let total = self.total(&object)?;
         let open: i64 = self
@@ -765,6 +772,8 @@ impl Ledger {
         Ok(LedgerStatus {
             schema_version: SCHEMA_VERSION,
             day: self.day_name(now_ms),
+            time_zone: self.zone.name(),
+            now_local: self.zone.local_time(now_ms),
             day_used_lux_hours: day_used,
             day_left_lux_hours: budgets.as_ref().map(|b| (b.daily_lux_hours - day_used).max(0.0)),
             year_used_lux_hours: year_used,
@@ -906,20 +915,6 @@ fn synchronous() -> &'static str {
     "FULL"
 }
 
-/// (year, month, day) of a day count since 1970-01-01 (H. Hinnant's civil_from_days).
-fn civil_from_days(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    (y, m, d)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -938,15 +933,8 @@ mod tests {
     const H: i64 = 3_600_000;
 
     #[test]
-    fn civil_dates() {
-        assert_eq!(civil_from_days(0), (1970, 1, 1));
-        assert_eq!(civil_from_days(19_723), (2024, 1, 1));
-        assert_eq!(civil_from_days(19_782), (2024, 2, 29));
-    }
-
-    #[test]
     fn reserve_counts_in_full_until_committed() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         l.set_active(&active(1000.0, 10_000.0)).unwrap();
         let id = l.reserve(LightKind::Showing, "r1", 100.0, 0, H).unwrap();
         assert!((l.total("vase").unwrap() - 100.0).abs() < 1e-9);
@@ -963,7 +951,7 @@ mod tests {
     fn commit_records_the_actual_end_past_the_reservation() {
         // A process stalled while lit: its light outlasted the reservation. The commit pays
         // for all of it (a clamp to the reservation was how stalled light went unpaid).
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         l.set_active(&active(1000.0, 10_000.0)).unwrap();
         let id = l.reserve(LightKind::Showing, "r1", 100.0, 0, H).unwrap();
         l.commit(id, 3 * H).unwrap();
@@ -978,43 +966,44 @@ mod tests {
         let ledger_path = state.join(LEDGER_FILE);
         // First start: ledger and guard created.
         let first_id = {
-            let mut l = Ledger::open_stage(state, 0).unwrap();
+            let mut l = Ledger::open_stage(state, LocalZone::utc()).unwrap();
             l.set_active(&active(1000.0, 10_000.0)).unwrap();
             l.accept_version("vase", 7, "h7", 0).unwrap();
             l.ledger_id().unwrap()
         };
         assert_eq!(std::fs::read_to_string(state.join(GUARD_FILE)).unwrap().trim(), first_id);
-        Ledger::open_stage(state, 0).unwrap();
+        Ledger::open_stage(state, LocalZone::utc()).unwrap();
         // Truncated to nothing.
         let good = std::fs::read(&ledger_path).unwrap();
         std::fs::write(&ledger_path, b"").unwrap();
-        let e = Ledger::open_stage(state, 0).unwrap_err();
+        let e = Ledger::open_stage(state, LocalZone::utc()).unwrap_err();
         assert!(matches!(e, LedgerError::Missing { .. }), "{e}");
         assert!(e.to_string().contains("ledger-reset"), "{e}");
         // Deleted.
         std::fs::remove_file(&ledger_path).unwrap();
-        assert!(matches!(Ledger::open_stage(state, 0), Err(LedgerError::Missing { .. })));
+        assert!(matches!(Ledger::open_stage(state, LocalZone::utc()), Err(LedgerError::Missing { .. })));
         assert!(!ledger_path.exists(), "a refused open creates nothing");
         // Another ledger put in its place (a backup from elsewhere).
-        Ledger::open(&ledger_path, 0).unwrap();
-        let e = Ledger::open_stage(state, 0).unwrap_err();
+        Ledger::open(&ledger_path, LocalZone::utc()).unwrap();
+        let e = Ledger::open_stage(state, LocalZone::utc()).unwrap_err();
         assert!(matches!(e, LedgerError::Replaced { .. }), "{e}");
         // The operator acknowledges: the stray file is kept aside, the new ledger says why.
         std::fs::write(&ledger_path, &good).unwrap();
         let _ = std::fs::remove_file(state.join(format!("{LEDGER_FILE}-wal")));
-        let (l, kept) = Ledger::reset_acknowledged(state, 0, "disk swapped, ticket 12", 5).unwrap();
+        let (l, kept) =
+            Ledger::reset_acknowledged(state, LocalZone::utc(), "disk swapped, ticket 12", 5).unwrap();
         assert_eq!(kept.len(), 1);
         assert!(kept[0].exists());
         assert_ne!(l.ledger_id().unwrap(), first_id);
         let ev = l.status(10).unwrap().last_events;
         assert!(ev.iter().any(|e| e.kind == "ledger-reset" && e.detail.contains("ticket 12")), "{ev:?}");
         drop(l);
-        Ledger::open_stage(state, 0).unwrap();
+        Ledger::open_stage(state, LocalZone::utc()).unwrap();
     }
 
     #[test]
     fn high_water_mark_follows_everything_recorded() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         assert_eq!(l.high_water_ms().unwrap(), 0);
         l.set_active(&active(1000.0, 10_000.0)).unwrap();
         l.record_run(1_000, 5, 999).unwrap();
@@ -1028,7 +1017,7 @@ mod tests {
 
     #[test]
     fn object_pin_is_recorded_with_an_event() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         assert_eq!(l.pinned_object().unwrap(), None);
         l.pin_object("vase", 1, "first").unwrap();
         l.pin_object("vase", 2, "again").unwrap();
@@ -1041,7 +1030,7 @@ mod tests {
 
     #[test]
     fn daily_budget_refuses_and_resets_next_day() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         l.set_active(&active(150.0, 10_000.0)).unwrap();
         let a = l.reserve(LightKind::Showing, "r1", 100.0, 0, H).unwrap();
         l.commit(a, H).unwrap();
@@ -1055,15 +1044,67 @@ mod tests {
 
     #[test]
     fn local_day_follows_utc_offset() {
-        let l = Ledger::open_in_memory(120).unwrap();
+        let l = Ledger::open_in_memory(LocalZone::fixed_offset_minutes(120).unwrap()).unwrap();
         // 23:00 UTC is 01:00 the next day at UTC+2.
         assert_eq!(l.day_start(23 * H), 22 * H);
         assert_eq!(l.day_name(23 * H), "1970-01-02");
     }
 
+    /// Unix ms of an RFC 3339 instant.
+    fn utc(s: &str) -> i64 {
+        s.parse::<jiff::Timestamp>().unwrap().as_millisecond()
+    }
+
+    /// Spends 100 lx for an hour from `at` if the daily budget (150 lx·h) allows it.
+    fn hour_at(l: &mut Ledger, at: &str) -> Result<(), Refusal> {
+        let from = utc(at);
+        let id = l.reserve(LightKind::Showing, "r1", 100.0, from, from + H)?;
+        l.commit(id, from + H)
+    }
+
+    #[test]
+    fn daily_budget_resets_at_local_midnight_across_spring_forward() {
+        let mut l = Ledger::open_in_memory(LocalZone::named("Europe/Amsterdam").unwrap()).unwrap();
+        l.set_active(&active(150.0, 1e9)).unwrap();
+        // Saturday 2026-03-28, CET: 23:00-24:00 local, then the 29th begins at 23:00Z.
+        hour_at(&mut l, "2026-03-28T22:00:00Z").unwrap();
+        hour_at(&mut l, "2026-03-28T23:00:00Z").unwrap();
+        // Sunday 2026-03-29 is 23 hours long (02:00 CET -> 03:00 CEST); 22:00 CEST is 20:00Z.
+        let e = hour_at(&mut l, "2026-03-29T20:00:00Z").unwrap_err();
+        assert!(matches!(&e, Refusal::Exhausted(m) if m.contains("2026-03-29")), "{e:?}");
+        assert_eq!(l.status(utc("2026-03-29T20:00:00Z")).unwrap().day, "2026-03-29");
+        // Local midnight is 22:00Z now (a fixed UTC+1 would still say 23:00 on the 29th).
+        hour_at(&mut l, "2026-03-29T22:00:00Z").unwrap();
+        let s = l.status(utc("2026-03-29T22:30:00Z")).unwrap();
+        assert_eq!((s.day.as_str(), s.day_used_lux_hours), ("2026-03-30", 100.0));
+        assert_eq!(s.now_local, "2026-03-30 00:30 CEST");
+        assert_eq!(s.time_zone, "Europe/Amsterdam");
+    }
+
+    #[test]
+    fn daily_budget_resets_at_local_midnight_across_fall_back() {
+        let mut l = Ledger::open_in_memory(LocalZone::named("Europe/Amsterdam").unwrap()).unwrap();
+        l.set_active(&active(150.0, 1e9)).unwrap();
+        // Sunday 2026-10-25 is 25 hours long: [22:00Z on the 24th, 23:00Z on the 25th).
+        hour_at(&mut l, "2026-10-24T21:00:00Z").unwrap();
+        hour_at(&mut l, "2026-10-24T22:00:00Z").unwrap();
+        hour_at(&mut l, "2026-10-25T21:00:00Z").unwrap_err();
+        // 23:00 CET on the 25th is still the 25th (a fixed UTC+2 would have reset at 22:00Z).
+        let e = hour_at(&mut l, "2026-10-25T22:00:00Z").unwrap_err();
+        assert!(matches!(&e, Refusal::Exhausted(m) if m.contains("2026-10-25")), "{e:?}");
+        hour_at(&mut l, "2026-10-25T23:00:00Z").unwrap();
+        assert_eq!(l.status(utc("2026-10-25T23:30:00Z")).unwrap().day, "2026-10-26");
+        // New York too: Sunday 2026-11-01 runs [04:00Z, 05:00Z on the 2nd).
+        let mut l = Ledger::open_in_memory(LocalZone::named("America/New_York").unwrap()).unwrap();
+        l.set_active(&active(150.0, 1e9)).unwrap();
+        hour_at(&mut l, "2026-11-01T04:00:00Z").unwrap();
+        hour_at(&mut l, "2026-11-02T04:00:00Z").unwrap_err();
+        hour_at(&mut l, "2026-11-02T05:00:00Z").unwrap();
+    }
+
     #[test]
     fn annual_budget_is_rolling() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         l.set_active(&active(1000.0, 150.0)).unwrap();
         l.reserve(LightKind::Idle, "black", 100.0, 0, H).unwrap();
         let e = l.reserve(LightKind::Showing, "r1", 100.0, 100 * 24 * H, 100 * 24 * H + H).unwrap_err();
@@ -1073,7 +1114,7 @@ mod tests {
 
     #[test]
     fn warnings_at_thresholds_once_per_day() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         l.set_active(&active(100.0, 1e9)).unwrap();
         let id = l.reserve(LightKind::Showing, "r1", 100.0, 0, H * 7 / 10).unwrap();
         assert!(l.status(H).unwrap().warnings.is_empty());
@@ -1088,7 +1129,7 @@ mod tests {
 
     #[test]
     fn anti_rollback() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         l.accept_version("vase", 3, "aaa", 0).unwrap();
         l.check_version("vase", 3, "aaa").unwrap();
         l.check_version("vase", 4, "bbb").unwrap();
@@ -1104,7 +1145,7 @@ mod tests {
 
     #[test]
     fn no_light_without_an_active_bundle() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         assert!(matches!(l.reserve(LightKind::Idle, "black", 1.0, 0, 1000), Err(Refusal::Exhausted(_))));
     }
 
@@ -1113,17 +1154,17 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("ledger.sqlite");
         {
-            let mut l = Ledger::open(&p, 0).unwrap();
+            let mut l = Ledger::open(&p, LocalZone::utc()).unwrap();
             l.set_active(&active(1000.0, 10_000.0)).unwrap();
             l.reserve(LightKind::Showing, "r1", 36.0, 0, 100_000).unwrap();
         }
-        let l = Ledger::open(&p, 0).unwrap();
+        let l = Ledger::open(&p, LocalZone::utc()).unwrap();
         l.integrity_check().unwrap();
         assert!((l.total("vase").unwrap() - 1.0).abs() < 1e-9);
         let s = l.status(0).unwrap();
         assert_eq!(s.schema_version, SCHEMA_VERSION);
         assert_eq!(s.open_reservations, 1);
-        let ro = Ledger::open_read_only(&p, 0).unwrap();
+        let ro = Ledger::open_read_only(&p, LocalZone::utc()).unwrap();
         assert!((ro.total("vase").unwrap() - 1.0).abs() < 1e-9);
     }
 
@@ -1142,7 +1183,7 @@ mod tests {
             )
             .unwrap();
         }
-        let l = Ledger::open(&p, 0).unwrap();
+        let l = Ledger::open(&p, LocalZone::utc()).unwrap();
         assert_eq!(l.status(0).unwrap().schema_version, SCHEMA_VERSION);
         assert!((l.total("vase").unwrap() - 1.0).abs() < 1e-9);
         assert_eq!(l.high_water_ms().unwrap(), 0);
@@ -1154,13 +1195,13 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("ledger.sqlite");
         Connection::open(&p).unwrap().pragma_update(None, "user_version", 99).unwrap();
-        let e = Ledger::open(&p, 0).unwrap_err();
+        let e = Ledger::open(&p, LocalZone::utc()).unwrap_err();
         assert!(matches!(e, LedgerError::SchemaTooNew { found: 99, .. }), "{e}");
     }
 
     #[test]
     fn full_database_is_a_failure_not_a_grant() {
-        let mut l = Ledger::open_in_memory(0).unwrap();
+        let mut l = Ledger::open_in_memory(LocalZone::utc()).unwrap();
         l.set_active(&active(1e9, 1e9)).unwrap();
         // SQLite reports a full disk as SQLITE_FULL; a page cap gives the same error.
         let pages: i64 = l.conn.pragma_query_value(None, "page_count", |r| r.get(0)).unwrap();

@@ -2,6 +2,7 @@
 
 pub mod clock;
 pub mod config;
+pub mod hours;
 pub mod input;
 pub mod ledger;
 pub mod loader;
@@ -12,3 +13,4 @@ pub mod player;
 pub mod runtime;
 pub mod show;
 pub mod verify;
+pub mod zone;

@@ -424,7 +424,7 @@ mod tests {
             path
         };
         let (v3, v4) = (write(3), write(4));
-        let mut ledger = Ledger::open_in_memory(0).unwrap();
+        let mut ledger = Ledger::open_in_memory(crate::zone::LocalZone::utc()).unwrap();
         let now = 1_700_000_100_000;
         assert!(load(&v3, &trust, &mut ledger, now, &LoadOptions::default(), |_| Ok(())).is_ok());
         let e = load(&v4, &trust, &mut ledger, now, &LoadOptions::default(), |_| Err("no 32x24 mode".into()))
@@ -456,7 +456,7 @@ mod tests {
         std::fs::write(trust.join("k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
         let path = dir.path().join("b.bundle");
         example_writer(&ExampleSpec::small()).write(&key, File::create(&path).unwrap()).unwrap();
-        let ledger = Ledger::open_in_memory(0).unwrap();
+        let ledger = Ledger::open_in_memory(crate::zone::LocalZone::utc()).unwrap();
         let opts = LoadOptions { memory: Some((1 << 20, false)), ..LoadOptions::default() };
         let e = prepare(&path, &trust, &ledger, 1_700_000_100_000, &opts).unwrap_err();
         assert!(matches!(e, LoadError::TooLarge { limit_mb: 1, .. }), "{e}");

@@ -90,8 +90,7 @@ fn ledger_reset(config: &Path, reason: &str) -> Result<()> {
         bail!("--reason must say why the ledger is being reset (it is recorded)");
     }
     let now = SystemTime.wall_ms();
-    let (_, kept) =
-        Ledger::reset_acknowledged(&config.state_dir, config.ledger.utc_offset_minutes, reason, now)?;
+    let (_, kept) = Ledger::reset_acknowledged(&config.state_dir, config.local_zone().clone(), reason, now)?;
     eprintln!("a fresh ledger records the reset in {}", config.state_dir.join(LEDGER_FILE).display());
     for k in kept {
         eprintln!("kept the old file as {}", k.display());
@@ -131,8 +130,10 @@ fn status(config: &Path, json: bool) -> Result<()> {
     if !path.exists() {
         bail!("no ledger at {} (has the appliance run yet?)", path.display());
     }
-    let ledger = Ledger::open_read_only(&path, config.ledger.utc_offset_minutes)?;
-    let s = ledger.status(ledger_now(&ledger)?)?;
+    let ledger = Ledger::open_read_only(&path, config.local_zone().clone())?;
+    let now = ledger_now(&ledger)?;
+    let s = ledger.status(now)?;
+    let zone = config.local_zone();
     let mut out = std::io::stdout().lock();
     if json {
         writeln!(out, "{}", serde_json::to_string_pretty(&s)?)?;
@@ -148,6 +149,11 @@ fn status(config: &Path, json: bool) -> Result<()> {
             a.path
         )?,
         None => writeln!(out, "active bundle: none")?,
+    }
+    writeln!(out, "now: {} ({})", s.now_local, s.time_zone)?;
+    let opening = config.opening_hours().at(now);
+    if config.opening_hours().is_scheduled() {
+        writeln!(out, "opening hours: {}", opening.reason)?;
     }
     let left = |l: Option<f64>| l.map_or("no budget".into(), |l| format!("{l:.3} lx·h left"));
     writeln!(
@@ -175,7 +181,7 @@ fn status(config: &Path, json: bool) -> Result<()> {
         writeln!(
             out,
             "  {} +{:.1} s  {}  (ended by {})",
-            sh.started_ms,
+            zone.local_time(sh.started_ms),
             (sh.ended_ms - sh.started_ms) as f64 / 1000.0,
             sh.scenes,
             sh.ended_by
@@ -183,14 +189,14 @@ fn status(config: &Path, json: bool) -> Result<()> {
     }
     writeln!(out, "last events:")?;
     for e in &s.last_events {
-        writeln!(out, "  {} {}: {}", e.at_ms, e.kind, e.detail)?;
+        writeln!(out, "  {} {}: {}", zone.local_time(e.at_ms), e.kind, e.detail)?;
     }
     Ok(())
 }
 
 fn install(bundle: &Path, config: &Path) -> Result<()> {
     let config = Config::load(config)?;
-    let ledger = Ledger::open_stage(&config.state_dir, config.ledger.utc_offset_minutes)?;
+    let ledger = Ledger::open_stage(&config.state_dir, config.local_zone().clone())?;
     let now = ledger_now(&ledger)?;
     let (verified, hash) =
         loader::open_verified(bundle, &config.trust_dir, &ledger, now, config.light_check.limits())?;

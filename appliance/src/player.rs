@@ -3,8 +3,10 @@
 //! before the light goes on (reserve, then switch the light, then commit the old lease).
 //!
 //! States: dark (no bundle, or stopped), idle, showing, ending (cross-fade), cooldown,
-//! budget exhausted, fault. The exposure timer ends every showing at the policy maximum
-//! whatever the button does: presses only ever start or cycle a showing.
+//! budget exhausted, fault, closed (outside opening hours). The exposure timer ends every
+//! showing at the policy maximum whatever the button does: presses only ever start or cycle
+//! a showing. Closing time ends a showing with its normal fade, to dark; while closed there
+//! is no light and no reservation, and presses are refused with the reason.
 
 use std::sync::Arc;
 
@@ -29,6 +31,11 @@ pub enum Event {
     Unload(String),
     /// Something failed (output, ledger): dark at once, until a reload.
     Fault(String),
+    /// Opening hours ended (`reason`, e.g. "closed: opens Tue 10:00"): a showing fades out,
+    /// then dark until `Open`.
+    Close { reason: String },
+    /// Opening hours began: back to idle (after any cooldown still running).
+    Open,
 }
 
 /// What the projectors show.
@@ -133,13 +140,37 @@ pub const EXHAUSTED_RETRY_MS: u64 = 60_000;
 /// The state, as reported by `status`.
 #[derive(Clone, Debug, PartialEq)]
 pub enum State {
-    Dark { reason: String },
+    Dark {
+        reason: String,
+    },
     Idle,
-    Showing { scene: usize, started: Now, scenes: Vec<usize>, last_change_ms: u64 },
-    Ending { from: usize, fade_start_ms: u64, step: u32, steps: u32 },
-    Cooldown { until_ms: u64 },
-    Exhausted { reason: String, retry_ms: u64 },
-    Fault { reason: String },
+    Showing {
+        scene: usize,
+        started: Now,
+        scenes: Vec<usize>,
+        last_change_ms: u64,
+    },
+    Ending {
+        from: usize,
+        to: Look,
+        fade_start_ms: u64,
+        step: u32,
+        steps: u32,
+    },
+    Cooldown {
+        until_ms: u64,
+    },
+    Exhausted {
+        reason: String,
+        retry_ms: u64,
+    },
+    Fault {
+        reason: String,
+    },
+    /// Outside opening hours: dark, presses refused with `reason`.
+    Closed {
+        reason: String,
+    },
 }
 
 impl State {
@@ -152,6 +183,7 @@ impl State {
             State::Cooldown { .. } => "cooldown",
             State::Exhausted { .. } => "budget-exhausted",
             State::Fault { .. } => "fault",
+            State::Closed { .. } => "closed",
         }
     }
 }
@@ -177,6 +209,8 @@ pub struct Player {
     /// leases whose light has been switched away (so a committed end is never before the
     /// light's) and showing records (so no write delays a blank).
     deferred: Vec<Deferred>,
+    /// Outside opening hours (why, for refusals), whatever the state; `None`: open.
+    closed: Option<String>,
 }
 
 /// A ledger write done by `settle`, after the outputs acted.
@@ -197,6 +231,7 @@ impl Player {
             lease: None,
             last_press_ms: None,
             deferred: Vec::new(),
+            closed: None,
         }
     }
 
@@ -230,6 +265,16 @@ impl Player {
 
     pub fn state(&self) -> &State {
         &self.state
+    }
+
+    /// Outside opening hours (the visitor's button is refused; its LED can say so).
+    pub fn is_closed(&self) -> bool {
+        self.closed.is_some()
+    }
+
+    /// Why presses are refused for opening hours, while closed.
+    pub fn closed_reason(&self) -> Option<&str> {
+        self.closed.as_deref()
     }
 
     /// What the outputs show now.
@@ -283,7 +328,7 @@ impl Player {
             }
             State::Cooldown { until_ms } => Some(*until_ms),
             State::Exhausted { retry_ms, .. } => Some(*retry_ms),
-            State::Dark { .. } | State::Idle | State::Fault { .. } => None,
+            State::Dark { .. } | State::Idle | State::Fault { .. } | State::Closed { .. } => None,
         }
     }
 
@@ -309,15 +354,13 @@ impl Player {
                 self.go_dark(now, &mut out, State::Dark { reason: "loading".into() }, "reload");
                 self.show = Some(show);
                 self.last_press_ms = None;
-                self.enter_idle(now, acct, &mut out);
-                // The cooldown after the last showing holds across reloads and restarts.
-                if self.state == State::Idle
-                    && let Some(end) = acct.last_showing_end()
-                {
-                    let left = end + self.cooldown_ms() as i64 - now.unix_ms;
-                    if left > 0 {
-                        self.state = State::Cooldown { until_ms: now.mono_ms + left as u64 };
-                    }
+                self.resume(now, acct, &mut out);
+            }
+            Event::Close { reason } => self.close(now, reason, acct, &mut out),
+            Event::Open => {
+                if self.closed.take().is_some() && matches!(self.state, State::Closed { .. }) {
+                    tracing::info!("opening hours began");
+                    self.resume(now, acct, &mut out);
                 }
             }
         }
@@ -326,7 +369,43 @@ impl Player {
         out
     }
 
+    /// Idle (or closed, outside opening hours), unless the cooldown after the last showing
+    /// is still running: it holds across reloads, restarts and closing times.
+    fn resume(&mut self, now: Now, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
+        self.enter_idle(now, acct, out);
+        if self.state == State::Idle
+            && let Some(end) = acct.last_showing_end()
+        {
+            let left = end + self.cooldown_ms() as i64 - now.unix_ms;
+            if left > 0 {
+                self.state = State::Cooldown { until_ms: now.mono_ms + left as u64 };
+            }
+        }
+    }
+
+    /// Closing time: a showing ends with its normal fade (to dark), anything else goes dark
+    /// now. A fade already running finishes, then goes dark; an operator's stop or a fault
+    /// keeps its own state (and reason) until it is cleared, then the stage stays closed.
+    fn close(&mut self, now: Now, reason: String, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
+        tracing::info!(%reason, "opening hours ended");
+        self.closed = Some(reason.clone());
+        match self.state.clone() {
+            State::Showing { scene, .. } => {
+                self.finish_showing(now, "closing");
+                self.begin_ending(now, scene, Look::Off, acct, out);
+            }
+            State::Ending { .. } | State::Dark { .. } | State::Fault { .. } => {}
+            State::Idle | State::Cooldown { .. } | State::Exhausted { .. } | State::Closed { .. } => {
+                self.go_dark(now, out, State::Closed { reason }, "closing")
+            }
+        }
+    }
+
     fn press(&mut self, now: Now, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
+        if let Some(reason) = &self.closed {
+            tracing::info!(%reason, "press refused: outside opening hours");
+            return;
+        }
         let Some(show) = self.show.clone() else { return };
         let cycle = show.cycle();
         if cycle.is_empty() {
@@ -383,7 +462,8 @@ impl Player {
             | State::Cooldown { .. }
             | State::Dark { .. }
             | State::Fault { .. }
-            | State::Exhausted { .. } => {}
+            | State::Exhausted { .. }
+            | State::Closed { .. } => {}
         }
     }
 
@@ -397,9 +477,10 @@ impl Player {
             match self.state.clone() {
                 State::Showing { scene, .. } => {
                     self.finish_showing(now, "timer");
-                    self.begin_ending(now, scene, acct, out);
+                    let to = self.idle_look();
+                    self.begin_ending(now, scene, to, acct, out);
                 }
-                State::Ending { from, fade_start_ms, step, steps } => {
+                State::Ending { from, to, fade_start_ms, step, steps } => {
                     // Only the latest due frame is worth showing after a late tick.
                     let elapsed = now.mono_ms - fade_start_ms;
                     let due = (elapsed * u64::from(steps) / self.fade_ms().max(1)) as u32;
@@ -409,18 +490,26 @@ impl Player {
                         return;
                     } else {
                         let t = due as f32 / steps as f32;
-                        out.push(Command::Fade { from: Look::Scene(from), to: self.idle_look(), t });
-                        self.state = State::Ending { from, fade_start_ms, step: due, steps };
+                        out.push(Command::Fade { from: Look::Scene(from), to, t });
+                        self.state = State::Ending { from, to, fade_start_ms, step: due, steps };
                     }
                 }
                 State::Cooldown { .. } => self.enter_idle(now, acct, out),
                 State::Exhausted { .. } => self.enter_idle(now, acct, out),
-                State::Dark { .. } | State::Idle | State::Fault { .. } => return,
+                State::Dark { .. } | State::Idle | State::Fault { .. } | State::Closed { .. } => return,
             }
         }
     }
 
-    fn begin_ending(&mut self, now: Now, from: usize, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
+    /// Fades from scene `from` to `to` (the idle look, or dark at closing time).
+    fn begin_ending(
+        &mut self,
+        now: Now,
+        from: usize,
+        to: Look,
+        acct: &mut dyn Accountant,
+        out: &mut Vec<Command>,
+    ) {
         let fade_ms = self.fade_ms();
         let steps = ((fade_ms * u64::from(self.settings.fade_fps)).div_ceil(1000)).max(1) as u32;
         if fade_ms == 0 || steps < 2 {
@@ -428,7 +517,6 @@ impl Player {
             return;
         }
         // The fade's light is bounded by the brighter of its ends; pay for that.
-        let to = self.idle_look();
         let lux = self.look_lux(Look::Scene(from)).max(self.look_lux(to));
         match self.reserve_and_commit(
             now,
@@ -438,13 +526,17 @@ impl Player {
             acct,
         ) {
             Ok(()) => {
-                self.state = State::Ending { from, fade_start_ms: now.mono_ms, step: 0, steps };
+                self.state = State::Ending { from, to, fade_start_ms: now.mono_ms, step: 0, steps };
             }
             Err(r) => self.refused(now, r, out),
         }
     }
 
     fn end_fade(&mut self, now: Now, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
+        if let Some(reason) = self.closed.clone() {
+            self.go_dark(now, out, State::Closed { reason }, "closing");
+            return;
+        }
         let to = self.idle_look();
         match self.switch_light(now, to, LightKind::Idle, acct, out) {
             Ok(()) => self.state = State::Cooldown { until_ms: now.mono_ms + self.cooldown_ms() },
@@ -454,6 +546,10 @@ impl Player {
 
     fn enter_idle(&mut self, now: Now, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
         if self.show.is_none() {
+            return;
+        }
+        if let Some(reason) = self.closed.clone() {
+            self.go_dark(now, out, State::Closed { reason }, "closing");
             return;
         }
         let look = self.idle_look();

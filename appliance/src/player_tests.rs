@@ -514,6 +514,8 @@ enum Op {
     Stop,
     Load,
     Shrink,
+    Close,
+    Open,
 }
 
 fn op() -> impl Strategy<Value = Op> {
@@ -525,6 +527,8 @@ fn op() -> impl Strategy<Value = Op> {
         1 => Just(Op::Stop),
         1 => Just(Op::Load),
         1 => Just(Op::Shrink),
+        2 => Just(Op::Close),
+        2 => Just(Op::Open),
     ]
 }
 
@@ -545,8 +549,22 @@ proptest! {
                 Op::Stop => s.event(Event::Stop),
                 Op::Load => s.event(Event::Load(show(idle))),
                 Op::Shrink => s.books.budget_lux_ms = s.books.used() + 50.0 * 3_000.0,
+                Op::Close => s.event(Event::Close { reason: "closed: opens Tue 10:00".into() }),
+                Op::Open => s.event(Event::Open),
             }
-            if matches!(s.p.state(), State::Fault { .. } | State::Dark { .. } | State::Exhausted { .. }) {
+            if matches!(
+                s.p.state(),
+                State::Fault { .. } | State::Dark { .. } | State::Exhausted { .. } | State::Closed { .. }
+            ) {
+                prop_assert_eq!(s.p.look(), Look::Off);
+            }
+            // Closed: no light and no reservation (only a closing fade still runs, to dark).
+            if s.p.is_closed() && !matches!(s.p.state(), State::Ending { .. }) {
+                prop_assert_eq!(s.p.look(), Look::Off);
+                prop_assert_eq!(s.p.leased_lux(), 0.0);
+                let n = s.books.leases.len();
+                s.event(Event::Press);
+                prop_assert_eq!(s.books.leases.len(), n);
                 prop_assert_eq!(s.p.look(), Look::Off);
             }
         }
@@ -619,5 +637,118 @@ fn cooldown_holds_across_a_reload() {
     assert_eq!(s.state(), "idle");
     s.event(Event::Press);
     assert_eq!(s.state(), "showing");
+    s.verify_invariants();
+}
+
+const CLOSED: &str = "closed: opens Tue 10:00";
+
+fn close() -> Event {
+    Event::Close { reason: CLOSED.into() }
+}
+
+#[test]
+fn press_while_closed_is_refused_with_the_reason() {
+    let mut s = Sim::new(IdleMode::Original, 1e9);
+    s.event(close());
+    assert_eq!(s.p.state(), &State::Closed { reason: CLOSED.into() });
+    assert!(s.p.is_closed());
+    assert_eq!(s.p.closed_reason(), Some(CLOSED));
+    assert_eq!(s.p.look(), Look::Off);
+    assert_eq!(s.p.leased_lux(), 0.0);
+    let (n, leases) = (s.commands.len(), s.books.leases.len());
+    s.event(Event::Press);
+    s.advance(3_600_000);
+    s.event(Event::Press);
+    assert_eq!(s.commands.len(), n, "no light while closed");
+    assert_eq!(s.books.leases.len(), leases, "no reservation while closed");
+    assert!(s.p.next_deadline().is_none());
+    // A reload while closed stays closed.
+    s.event(Event::Load(show(s.idle)));
+    assert_eq!(s.state(), "closed");
+    assert_eq!(s.p.look(), Look::Off);
+    s.verify_invariants();
+}
+
+#[test]
+fn a_showing_at_closing_time_fades_out_then_goes_dark() {
+    let mut s = Sim::new(IdleMode::Original, 1e9);
+    s.event(Event::Press);
+    s.advance(5_000);
+    s.event(close());
+    // The normal fade, towards dark rather than the idle scene: no cut.
+    assert_eq!(s.state(), "ending");
+    assert_eq!(s.p.look(), Look::Scene(1));
+    s.advance(FADE / 2);
+    let fades: Vec<f32> = s
+        .commands
+        .iter()
+        .filter_map(|(_, c)| match c {
+            Command::Fade { from: Look::Scene(1), to: Look::Off, t } => Some(*t),
+            _ => None,
+        })
+        .collect();
+    assert!(fades.len() >= 3 && fades.windows(2).all(|w| w[0] < w[1]), "{fades:?}");
+    s.advance(FADE / 2);
+    assert_eq!(s.state(), "closed");
+    assert_eq!(s.p.look(), Look::Off);
+    assert_eq!(s.p.leased_lux(), 0.0);
+    assert_eq!(s.books.showings.last().unwrap().2, "closing");
+    // The showing was capped by closing, not lengthened.
+    assert!(s.longest_showing_ms(20.0) <= 5_000 + FADE as i64);
+    s.verify_invariants();
+}
+
+#[test]
+fn closing_during_idle_or_cooldown_goes_dark_and_reopening_restores_idle() {
+    let mut s = Sim::new(IdleMode::Black, 1e9);
+    s.event(close());
+    assert_eq!(s.state(), "closed");
+    assert_eq!(s.p.look(), Look::Off);
+    s.event(Event::Open);
+    assert!(!s.p.is_closed());
+    assert_eq!(s.state(), "idle");
+    assert_eq!(s.p.look(), Look::Black);
+    s.event(Event::Press);
+    assert_eq!(s.state(), "showing");
+    s.advance(MAX_SHOW);
+    assert_eq!(s.state(), "cooldown");
+    // Closed in the cooldown and open again before it ran out: the cooldown still holds.
+    s.event(close());
+    assert_eq!(s.state(), "closed");
+    s.advance(COOLDOWN / 2);
+    s.event(Event::Open);
+    assert_eq!(s.state(), "cooldown");
+    s.advance(COOLDOWN);
+    assert_eq!(s.state(), "idle");
+    s.event(Event::Press);
+    assert_eq!(s.state(), "showing");
+    s.verify_invariants();
+}
+
+#[test]
+fn opening_during_the_closing_fade_ends_in_the_cooldown() {
+    let mut s = Sim::new(IdleMode::Original, 1e9);
+    s.event(Event::Press);
+    s.event(close());
+    assert_eq!(s.state(), "ending");
+    s.event(Event::Open);
+    s.advance(FADE);
+    assert_eq!(s.state(), "cooldown");
+    assert_eq!(s.p.look(), Look::Scene(0));
+    s.verify_invariants();
+}
+
+#[test]
+fn a_stop_or_fault_while_closed_keeps_its_reason_and_the_stage_stays_closed() {
+    let mut s = Sim::new(IdleMode::Original, 1e9);
+    s.event(close());
+    s.event(Event::Stop);
+    assert_eq!(s.state(), "dark");
+    assert!(s.p.is_closed());
+    // The operator's reload brings the bundle back, still closed.
+    s.event(Event::Load(show(s.idle)));
+    assert_eq!(s.state(), "closed");
+    s.event(Event::Open);
+    assert_eq!(s.state(), "idle");
     s.verify_invariants();
 }

@@ -128,6 +128,8 @@ pub struct App {
     ledger_retry_ms: Option<u64>,
     /// The wall clock's distance from ledger time when last reported.
     reported_skew_ms: i64,
+    /// When the opening hours next change (ledger Unix ms); `None`: no change ahead.
+    hours_change_ms: Option<i64>,
 }
 
 impl std::fmt::Debug for App {
@@ -256,12 +258,12 @@ impl App {
         let path = self.config.bundle_path();
         let trust = self.config.trust_dir.clone();
         let ledger_path = self.config.state_dir.join(LEDGER_FILE);
-        let offset = self.config.ledger.utc_offset_minutes;
+        let zone = self.config.local_zone().clone();
         let opts = self.load_options();
         let tx = self.prepared_tx.clone();
         let worker = move || {
             // Its own read-only connection: the loop's connection stays the loop's.
-            let result = Ledger::open_read_only(&ledger_path, offset)
+            let result = Ledger::open_read_only(&ledger_path, zone)
                 .map_err(LoadError::Ledger)
                 .and_then(|ledger| loader::prepare(&path, &trust, &ledger, now.unix_ms, &opts));
             let _ = tx.blocking_send(result);
@@ -393,9 +395,10 @@ impl App {
     fn status_json(&self) -> String {
         let now = self.now();
         let (state, detail) = match self.player.state() {
-            State::Dark { reason } | State::Fault { reason } | State::Exhausted { reason, .. } => {
-                (self.player.state().name(), Some(reason.clone()))
-            }
+            State::Dark { reason }
+            | State::Fault { reason }
+            | State::Exhausted { reason, .. }
+            | State::Closed { reason } => (self.player.state().name(), Some(reason.clone())),
             s => (s.name(), None),
         };
         let show = self.player.show().map(|s| {
@@ -405,7 +408,12 @@ impl App {
             })
         });
         let ledger = self.ledger.status(now.unix_ms).map_err(|e| e.to_string());
+        let zone = self.config.local_zone();
+        let opening = self.config.opening_hours().at(now.unix_ms);
         let v = serde_json::json!({
+            "open": opening.open,
+            "next_change": opening.next_change_ms.map(|t| zone.local_time(t)),
+            "time_zone": zone.name(),
             "state": state,
             "detail": detail,
             "ledger_time_ms": now.unix_ms,
@@ -424,6 +432,7 @@ impl App {
             State::Dark { reason } => format!("dark: {reason}"),
             State::Fault { reason } => format!("fault: {reason}"),
             State::Exhausted { reason, .. } => format!("budget exhausted: {reason}"),
+            State::Closed { reason } => reason.clone(),
             s => s.name().to_string(),
         };
         if s != self.last_status {
@@ -460,7 +469,10 @@ impl App {
                 let answer = match command {
                     Control::Press => {
                         self.step(Event::Press);
-                        format!("ok {}", self.player.state().name())
+                        match self.player.closed_reason() {
+                            Some(reason) => format!("ok {} ({reason})", self.player.state().name()),
+                            None => format!("ok {}", self.player.state().name()),
+                        }
                     }
                     Control::Stop => {
                         self.step(Event::Stop);
@@ -498,11 +510,36 @@ impl App {
             .filter(|_| !matches!(self.player.state(), State::Dark { .. }))
             .map(|e| (e - now.unix_ms).max(0) as u64);
         let retry = self.ledger_retry_ms.map(|r| r.saturating_sub(now.mono_ms));
-        [tick, expiry, retry].into_iter().flatten().min()
+        let hours = self.hours_change_ms.map(|t| (t - now.unix_ms).max(0) as u64);
+        [tick, expiry, retry, hours].into_iter().flatten().min()
+    }
+
+    /// Opening hours: tells the player when they begin or end (in ledger time, which no
+    /// wall-clock step moves) and sets the timer for the next change.
+    fn watch_hours(&mut self) {
+        let now = self.now();
+        let opening = self.config.opening_hours().at(now.unix_ms);
+        self.hours_change_ms = opening.next_change_ms;
+        if opening.open {
+            if self.player.is_closed() {
+                tracing::info!(reason = %opening.reason, "opening hours began");
+                self.step(Event::Open);
+            }
+        } else if self.player.closed_reason() != Some(opening.reason.as_str()) {
+            self.step(Event::Close { reason: opening.reason });
+        }
+    }
+
+    /// Outside opening hours (presses are refused): for the visitor's button LED.
+    pub fn is_closed(&self) -> bool {
+        self.player.is_closed()
     }
 
     fn tick(&mut self) {
         let now = self.now();
+        if self.hours_change_ms.is_some_and(|t| now.unix_ms >= t) {
+            self.watch_hours();
+        }
         if let Some(e) = self.player.show().and_then(|s| s.expires_unix_ms)
             && now.unix_ms >= e
             && !matches!(self.player.state(), State::Dark { .. })
@@ -599,7 +636,7 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         }
     }
     check_state_dir(&config.state_dir)?;
-    let mut ledger = Ledger::open_stage(&config.state_dir, config.ledger.utc_offset_minutes)?;
+    let mut ledger = Ledger::open_stage(&config.state_dir, config.local_zone().clone())?;
     ledger.integrity_check()?;
     ledger.set_busy_timeout(config.ledger.busy_timeout_ms)?;
     let wall_ms = time.wall_ms();
@@ -646,7 +683,10 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         prepared_tx,
         ledger_retry_ms: None,
         reported_skew_ms,
+        hours_change_ms: None,
     };
+    // Closed before the bundle loads: outside opening hours the first light never comes on.
+    app.watch_hours();
     if let Err(e) = app.load_now() {
         tracing::warn!("starting dark: {e}");
     }

@@ -51,7 +51,8 @@ fn clock_steps_during_showings_neither_shrink_nor_stretch_them() {
     let v = wait_status(&sock, Duration::from_secs(5), |_| true);
     assert!(v["wall_skew_ms"].as_i64().unwrap().abs() < 5_000, "the steps cancel out: {v}");
     stage.mark_dark();
-    let ledger = Ledger::open(&stage.path("state/ledger.sqlite"), 0).unwrap();
+    let ledger =
+        Ledger::open(&stage.path("state/ledger.sqlite"), restage_appliance::zone::LocalZone::utc()).unwrap();
     let checked = stage.assert_every_lit_stretch_paid(&ledger);
     let status = ledger.status(i64::MAX / 4).unwrap();
     let showings: Vec<i64> = status.last_showings.iter().map(|s| s.ended_ms - s.started_ms).collect();
@@ -120,6 +121,7 @@ fn no_clock_step_reopens_an_exhausted_budget() {
     std::thread::sleep(Duration::from_millis(200));
     stage.mark_dark();
     assert_eq!(stage.showing_stretches_ms(None).len(), shown, "a clock step re-opened the budget");
-    let ledger = Ledger::open(&stage.path("state/ledger.sqlite"), 0).unwrap();
+    let ledger =
+        Ledger::open(&stage.path("state/ledger.sqlite"), restage_appliance::zone::LocalZone::utc()).unwrap();
     stage.assert_every_lit_stretch_paid(&ledger);
 }

@@ -161,14 +161,15 @@ fn adversarial_kills_stalls_and_lock_holders_never_under_count() {
         // Restart's view of the ledger: opens (recovering the WAL), passes the integrity
         // check, and covers every lit stretch so far.
         if ledger_path.exists() {
-            let ledger = Ledger::open(&ledger_path, 0).unwrap_or_else(|e| panic!("round {round}: {e}"));
+            let ledger = Ledger::open(&ledger_path, restage_appliance::zone::LocalZone::utc())
+                .unwrap_or_else(|e| panic!("round {round}: {e}"));
             ledger.integrity_check().unwrap_or_else(|e| panic!("round {round}: {e}"));
             if round % 10 == 9 {
                 stage.assert_every_lit_stretch_paid(&ledger);
             }
         }
     }
-    let ledger = Ledger::open(&ledger_path, 0).unwrap();
+    let ledger = Ledger::open(&ledger_path, restage_appliance::zone::LocalZone::utc()).unwrap();
     ledger.integrity_check().unwrap();
     let recorded = ledger.total(OBJECT).unwrap();
     let seen = stage.true_exposure();

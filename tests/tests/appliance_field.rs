@@ -76,7 +76,8 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
     // stretches are the new bundle's idle scene (other frames).
     assert!(stretches[0] <= 400.0 + 300.0, "{stretches:?}");
     assert!(verify_s > 1.0, "the slow bundle verified in {verify_s:.2} s: the test shows nothing");
-    let ledger = Ledger::open(&stage.path("state/ledger.sqlite"), 0).unwrap();
+    let ledger =
+        Ledger::open(&stage.path("state/ledger.sqlite"), restage_appliance::zone::LocalZone::utc()).unwrap();
     // Paid up to the new bundle's first frame (whose light the stage's model does not know).
     let recs = stage.records();
     let size = format!("-{}x{}.xrgb", stage.spec.width, stage.spec.height);

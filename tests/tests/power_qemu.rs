@@ -269,7 +269,8 @@ fn read_ledger(disk: &Path, work: &Path) -> Result<Option<LedgerView>, String> {
         }
     }
     let path = dir.join("ledger.sqlite");
-    let ledger = Ledger::open(&path, 0).map_err(|e| format!("open: {e}"))?;
+    let ledger =
+        Ledger::open(&path, restage_appliance::zone::LocalZone::utc()).map_err(|e| format!("open: {e}"))?;
     ledger.integrity_check().map_err(|e| e.to_string())?;
     let rows = ledger.exposure_rows(OBJECT).map_err(|e| e.to_string())?;
     let total_lxh = ledger.total(OBJECT).map_err(|e| e.to_string())?;
