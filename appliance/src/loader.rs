@@ -404,6 +404,69 @@ pub fn load(
     activate(prepared, ledger, now_unix_ms, opts.object_id.as_deref(), playable)
 }
 
+/// The bundle installed at a path as an operator's `status` describes it: what it is and
+/// whether its header, signature (with a trusted key), validity and version pass now. Cheap:
+/// no section is read (the player verifies everything when it loads the bundle).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Installed {
+    pub path: String,
+    pub object: Option<String>,
+    pub version: Option<u64>,
+    /// First 16 hex digits of the manifest hash.
+    pub hash: Option<String>,
+    pub expires_unix_ms: Option<i64>,
+    /// `None`: header, signature, validity and version pass; else why not.
+    pub problem: Option<String>,
+}
+
+/// Describes the bundle at `path` (see [`Installed`]) at ledger time `now_unix_ms`.
+pub fn installed(path: &Path, trust_dir: &Path, ledger: &Ledger, now_unix_ms: i64) -> Installed {
+    let mut out = Installed {
+        path: path.display().to_string(),
+        object: None,
+        version: None,
+        hash: None,
+        expires_unix_ms: None,
+        problem: None,
+    };
+    let open = || File::open(path).map_err(|e| format!("cannot open: {e}"));
+    let file = match open() {
+        Ok(f) => f,
+        Err(e) => {
+            out.problem = Some(e);
+            return out;
+        }
+    };
+    // Unauthenticated first, only to say what the file claims to be when it is refused.
+    if let Ok(r) = BundleReader::open_unauthenticated(file, Limits::default()) {
+        let m = r.manifest();
+        out.object = Some(m.object.id.clone());
+        out.version = Some(m.version);
+        out.expires_unix_ms = m.expires_unix_s.map(|s| s.saturating_mul(1000));
+    }
+    let trust = match TrustStore::load_dir(trust_dir) {
+        Ok(t) => t,
+        Err(e) => {
+            out.problem = Some(format!("trust directory {}: {e}", trust_dir.display()));
+            return out;
+        }
+    };
+    let last = |object: &str| ledger.accepted_version(object).ok().flatten();
+    let opts = VerifyOptions {
+        now_unix_s: now_unix_ms.div_euclid(1000),
+        last_accepted: &last,
+        limits: Limits::default(),
+    };
+    match open().and_then(|f| BundleReader::open(f, &trust, &opts).map_err(|e| e.to_string())) {
+        Ok(r) => {
+            let hash: String = r.manifest_hash().iter().take(8).map(|b| format!("{b:02x}")).collect();
+            out.hash = Some(hash);
+        }
+        Err(e) => out.problem = Some(e),
+    }
+    out
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
