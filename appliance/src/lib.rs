@@ -3,6 +3,7 @@
 pub mod clock;
 pub mod config;
 pub mod export;
+pub mod identify;
 pub mod input;
 pub mod ledger;
 pub mod loader;

@@ -18,11 +18,12 @@ use std::sync::Arc;
 
 use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions};
 use restage_shared::keys::{KeyError, TrustStore};
-use restage_shared::light::{StageLimits, XrgbFrame, max_irradiance};
+use restage_shared::light::{LightCheck, LightError, StageLimits, XrgbFrame, max_irradiance};
 use restage_shared::policy::IdleMode as PolicyIdle;
 use thiserror::Error;
 
 use crate::config::IdleMode;
+use crate::identify::Pattern;
 use crate::ledger::{ActiveBundle, Budgets, Ledger, LedgerError};
 use crate::player::Look;
 use crate::show::{Policy, Response, Scene, SceneKind, Show};
@@ -67,6 +68,8 @@ pub struct FrameStore {
     bundle: VerifiedBundle<File>,
     cache: HashMap<usize, Arc<Vec<Vec<u8>>>>,
     pinned: Vec<usize>,
+    /// The stage's light-check limits (the commissioning patterns are built under them).
+    stage: StageLimits,
 }
 
 impl FrameStore {
@@ -82,6 +85,15 @@ impl FrameStore {
         self.cache.retain(|k, _| pinned.contains(k));
         self.cache.insert(s, frames.clone());
         Ok(frames)
+    }
+
+    /// Projector `k`'s commissioning pattern at `pattern`'s level (see [`crate::identify`]):
+    /// built when asked and not kept.
+    pub fn identify(&self, k: usize, pattern: Pattern) -> Result<Arc<Vec<Vec<u8>>>, LightError> {
+        let m = &self.bundle.manifest;
+        let check = LightCheck::new(&m.light, &self.bundle.certificate, &self.stage)?;
+        let sizes: Vec<(u32, u32)> = m.projectors.iter().map(|p| (p.width, p.height)).collect();
+        Ok(Arc::new(crate::identify::frames(&check, &sizes, k, pattern.level)))
     }
 
     /// Reads the pinned scenes (the idle one and the first restoration) into memory.
@@ -292,7 +304,7 @@ pub fn prepare(
     let rank = |l: Look| match l {
         Look::Off => 0,
         Look::Black => 1,
-        Look::Scene(_) => 2,
+        Look::Scene(_) | Look::Identify(_) => 2,
     };
     let idle_look = match idle {
         None => policy_idle,
@@ -310,7 +322,11 @@ pub fn prepare(
             }
         }
     };
+    let sizes: Vec<(u32, u32)> = m.projectors.iter().map(|p| (p.width, p.height)).collect();
+    let identify = crate::identify::patterns(&m.light, &bundle.certificate, &opts.stage, &sizes)
+        .map_err(|e| unplayable(format!("commissioning pattern: {e}")))?;
     let show = Show {
+        identify,
         object_id: m.object.id.clone(),
         version: m.version,
         bundle_hash: hash.clone(),
@@ -336,7 +352,7 @@ pub fn prepare(
     if let Some(&first) = show.cycle().first() {
         pinned.push(first);
     }
-    let store = FrameStore { bundle, cache: HashMap::new(), pinned };
+    let store = FrameStore { bundle, cache: HashMap::new(), pinned, stage: opts.stage };
     Ok(Prepared { path: path.into(), hash, show, store })
 }
 

@@ -51,6 +51,20 @@ enum Command {
         #[command(flatten)]
         config: ConfigArg,
     },
+    /// Show projector K's commissioning pattern (grid, frame and its number) on the running
+    /// appliance, the others black: which projector is which, and where it lands. Only while
+    /// idle; paid from the light budget like any light.
+    Identify {
+        #[command(flatten)]
+        config: ConfigArg,
+        /// The projector, counted from 1 in the bundle's order.
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..))]
+        projector: u8,
+        /// How long, in seconds.
+        #[arg(long, default_value_t = restage_appliance::input::IDENTIFY_DEFAULT_S,
+              value_parser = clap::value_parser!(u16).range(1..=i64::from(restage_appliance::input::IDENTIFY_MAX_S)))]
+        seconds: u16,
+    },
     /// The light ledger: export its history, or acknowledge a lost one.
     Ledger {
         #[command(subcommand)]
@@ -121,6 +135,7 @@ fn main() -> Result<()> {
         }
         Command::Ledger { command: LedgerCommand::Reset { config, reason } }
         | Command::LedgerReset { config, reason } => ledger_reset(&config.config, &reason),
+        Command::Identify { config, projector, seconds } => identify(&config.config, projector, seconds),
         Command::Ledger { command: LedgerCommand::Export { config, csv: _, out } } => {
             ledger_export(&config.config, out.as_deref())
         }
@@ -145,6 +160,20 @@ fn ledger_export(config: &Path, out: Option<&Path>) -> Result<()> {
             eprintln!("{} exposure rows written to {}", rows.len(), path.display());
         }
         None => restage_appliance::export::write_csv(&rows, utc, local, std::io::stdout().lock())?,
+    }
+    Ok(())
+}
+
+fn identify(config: &Path, projector: u8, seconds: u16) -> Result<()> {
+    let config = Config::load(config)?;
+    let Some(sock) = &config.inputs.control_socket else {
+        bail!("identify talks to the running appliance: set [inputs] control_socket in the configuration");
+    };
+    let answer = ask(sock, &format!("identify {projector} {seconds}"))
+        .with_context(|| format!("no running appliance answered on {}", sock.display()))?;
+    match answer.strip_prefix("error: ") {
+        Some(why) => bail!("projector {projector}: {why}"),
+        None => println!("{answer}"),
     }
     Ok(())
 }

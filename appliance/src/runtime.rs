@@ -233,6 +233,14 @@ impl App {
                     .map_err(|e| format!("bundle frames of scene {}: {e}", show.scenes[s].id))?;
                 Ok(LookFrames::Scene(frames))
             }
+            Look::Identify(k) => {
+                let pattern = show.identify.get(k).copied().flatten().ok_or("no commissioning pattern")?;
+                let store = self.store.as_ref().ok_or("no bundle loaded")?;
+                let frames = store
+                    .identify(k, pattern)
+                    .map_err(|e| format!("commissioning pattern of projector {}: {e}", k + 1))?;
+                Ok(LookFrames::Scene(frames))
+            }
             Look::Black | Look::Off => {
                 // One buffer of zeros serves every projector (each takes its own length).
                 let len =
@@ -472,6 +480,7 @@ impl App {
                         return true;
                     }
                     Control::Status => self.status_json(),
+                    Control::Identify { projector, seconds } => self.identify(projector, seconds),
                 };
                 if let Some(r) = reply {
                     let _ = r.send(answer);
@@ -485,6 +494,36 @@ impl App {
             }
         }
         true
+    }
+
+    /// The operator's `identify K S`: projector K (1-based) shows its commissioning pattern
+    /// for S seconds, if the player is idle; the answer says what happened.
+    fn identify(&mut self, projector: u8, seconds: u16) -> String {
+        let Some(show) = self.player.show().cloned() else {
+            return "error: no bundle loaded".into();
+        };
+        let k = usize::from(projector) - 1;
+        let Some(pattern) = show.identify.get(k) else {
+            return format!("error: the bundle has {} projectors, not {projector}", show.projectors.len());
+        };
+        let Some(pattern) = pattern else {
+            return format!("error: projector {projector} has no pixel it may light within the bound");
+        };
+        self.step(Event::Identify { projector: k, ms: u64::from(seconds) * 1000 });
+        match self.player.state() {
+            State::Identifying { .. } => {
+                let _ = self.ledger.log_event(
+                    self.now().unix_ms,
+                    "identify",
+                    &format!("projector {projector} for {seconds} s at {:.1} lx", pattern.peak_lux),
+                );
+                format!(
+                    "ok identifying projector {projector} for {seconds} s ({:.1} lx peak, paid)",
+                    pattern.peak_lux
+                )
+            }
+            s => format!("error: not idle ({}); try again when the player is idle", s.name()),
+        }
     }
 
     /// Milliseconds until the player needs a tick or the bundle expires.

@@ -120,3 +120,66 @@ fn the_configuration_defaults_to_etc_restage() {
     }
     assert!(!o.status.success() && err.contains("/etc/restage/appliance.toml"), "{err}");
 }
+
+/// The running appliance (headless recorder, control socket); killed with SIGTERM on drop.
+struct Running(std::process::Child);
+
+impl Drop for Running {
+    fn drop(&mut self) {
+        let _ = Command::new("kill").arg("-TERM").arg(self.0.id().to_string()).status();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn identify_lights_one_projector_within_the_bound_and_the_ledger_pays() {
+    let s = stage();
+    let sock = s.root.join("control.sock");
+    let mut text = std::fs::read_to_string(&s.config).unwrap();
+    text.push_str(&format!("[inputs]\ncontrol_socket = \"{}\"\n", sock.display()));
+    std::fs::write(&s.config, text).unwrap();
+    let bundle = s.root.join("new.restage");
+    assert!(appliance(&["install", bundle.to_str().unwrap()], &s.config).0);
+    let _run = Running(
+        Command::new(env!("CARGO_BIN_EXE_restage-appliance"))
+            .args(["run", "--config"])
+            .arg(&s.config)
+            .env("RESTAGE_LOG", "warn")
+            .spawn()
+            .unwrap(),
+    );
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    while !sock.exists() {
+        assert!(std::time::Instant::now() < deadline, "the appliance did not open its control socket");
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    // Projector 3 of a 2-projector bundle: refused, naming the count.
+    let (ok, _, err) = appliance(&["identify", "--projector", "3"], &s.config);
+    assert!(!ok && err.contains("2 projectors"), "{err}");
+    let (ok, out, err) = appliance(&["identify", "--projector", "2", "--seconds", "1"], &s.config);
+    assert!(ok && out.contains("ok identifying projector 2"), "{out}{err}");
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+
+    // The recorder saw a frame set where only projector 2 (index 1) is lit.
+    let frames = s.root.join("frames");
+    let log = std::fs::read_to_string(frames.join("log.tsv")).unwrap();
+    let lit = |file: &str| std::fs::read(frames.join("frames").join(file)).unwrap().iter().any(|&b| b > 0);
+    let identify_shown = log.lines().any(|l| {
+        let f: Vec<&str> = l.split('\t').collect();
+        f.len() == 5 && f[2] == "show" && !lit(f[3]) && lit(f[4])
+    });
+    assert!(identify_shown, "{log}");
+
+    // And the ledger paid for it, under the bound the example model allows (47.5 lx).
+    let (ok, csv_text, err) = appliance(&["ledger", "export", "--csv"], &s.config);
+    assert!(ok, "{err}");
+    let mut r = csv::Reader::from_reader(csv_text.as_bytes());
+    let row = r
+        .records()
+        .map(Result::unwrap)
+        .find(|r| &r[1] == "identify")
+        .unwrap_or_else(|| panic!("no identify row in {csv_text}"));
+    assert_eq!(&row[2], "identify:1");
+    let lux: f64 = row[3].parse().unwrap();
+    assert!(lux > 0.0 && lux <= 47.5, "{lux}");
+}
