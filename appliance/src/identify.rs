@@ -180,8 +180,8 @@ mod tests {
             let sizes = vec![(spec.width, spec.height); spec.projectors];
             let stage = StageLimits::default();
             let all = patterns(&light, &cert, &stage, &sizes).unwrap();
-            for k in 0..spec.projectors {
-                let p = all[k].expect("a pattern");
+            for (k, p) in all.iter().enumerate() {
+                let p = p.expect("a pattern");
                 assert!(p.peak_lux <= light.allowed_lux(), "{p:?}");
                 let check = LightCheck::new(&light, &cert, &stage).unwrap();
                 let owned = frames(&check, &sizes, k, p.level);
