@@ -373,7 +373,11 @@ mod tests {
         let mut c = connect(&availability, 16);
         let start = tokio::time::Instant::now();
         for k in 0..20u64 {
-            let a = if k % 2 == 0 { Availability::Showing } else { Availability::Wait { until_mono_ms: k } };
+            let a = if k.is_multiple_of(2) {
+                Availability::Showing
+            } else {
+                Availability::Wait { until_mono_ms: k }
+            };
             crate::feedback::publish(&publish, a);
             c.send(b"PING\nSTATE?\nPRESS\n").await;
         }
