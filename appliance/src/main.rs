@@ -122,10 +122,10 @@ enum LedgerCommand {
 }
 
 fn main() -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(EnvFilter::try_from_env("RESTAGE_LOG").unwrap_or_else(|_| EnvFilter::new("info")))
-        .with_writer(std::io::stderr)
-        .init();
+    // Colour on a terminal only; priority prefixes, no timestamps under systemd.
+    restage_appliance::logging::init(
+        EnvFilter::try_from_env("RESTAGE_LOG").unwrap_or_else(|_| EnvFilter::new("info")),
+    );
     match Cli::parse().command {
         Command::Run { config } => run(&config.config),
         Command::Status { config, json } => status(&config.config, json),

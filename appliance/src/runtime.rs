@@ -11,10 +11,11 @@ use std::time::Duration;
 
 use thiserror::Error;
 use tokio::signal::unix::{SignalKind, signal};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use crate::clock::{Clock, LedgerClock, SystemTime, TimeSource, monotonic_us};
 use crate::config::{Config, LEDGER_FILE, OutputConfig};
+use crate::feedback::{self, Availability};
 use crate::input::{self, Control, InputEvent};
 use crate::ledger::{Ledger, LedgerError};
 use crate::loader::{self, FrameStore, LoadError, Prepared};
@@ -128,6 +129,8 @@ pub struct App {
     ledger_retry_ms: Option<u64>,
     /// The wall clock's distance from ledger time when last reported.
     reported_skew_ms: i64,
+    /// What the visitor's button box shows (serial `LED` lines, the GPIO LED).
+    availability: watch::Sender<Availability>,
 }
 
 impl std::fmt::Debug for App {
@@ -428,6 +431,8 @@ impl App {
     }
 
     fn report_status(&mut self) {
+        // Opening hours are not known here yet: never closed.
+        feedback::publish(&self.availability, feedback::availability(self.player.state(), false));
         let s = match self.player.state() {
             State::Dark { reason } => format!("dark: {reason}"),
             State::Fault { reason } => format!("fault: {reason}"),
@@ -654,7 +659,9 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         ledger.log_event(anchor_ms, "clock", &detail)?;
     }
     tracing::info!(ledger_ms = anchor_ms, boot_ms = anchor_boot_ms, "ledger clock anchored");
-    start_inputs(&config, &tx)?;
+    // Out of order until the player says otherwise.
+    let (availability_tx, availability_rx) = watch::channel(Availability::OutOfOrder);
+    start_inputs(&config, &tx, &availability_rx)?;
 
     let p = &config.player;
     let settings = PlayerSettings {
@@ -685,6 +692,7 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         prepared_tx,
         ledger_retry_ms: None,
         reported_skew_ms,
+        availability: availability_tx,
     };
     if let Err(e) = app.load_now() {
         tracing::warn!("starting dark: {e}");
@@ -732,7 +740,11 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
     Ok(())
 }
 
-fn start_inputs(config: &Config, tx: &input::InputSender) -> Result<(), RunError> {
+fn start_inputs(
+    config: &Config,
+    tx: &input::InputSender,
+    availability: &watch::Receiver<Availability>,
+) -> Result<(), RunError> {
     let i = &config.inputs;
     if i.stdin {
         tokio::spawn(input::stdin::run(tx.clone()));
@@ -743,7 +755,7 @@ fn start_inputs(config: &Config, tx: &input::InputSender) -> Result<(), RunError
         tokio::spawn(input::socket::run(listener, path.clone(), tx.clone()));
     }
     if let Some(s) = &i.serial {
-        tokio::spawn(input::serial::run(s.path.clone(), s.baud, tx.clone()));
+        tokio::spawn(input::serial::run(s.path.clone(), s.baud, tx.clone(), availability.clone()));
     }
     if let Some(e) = &i.evdev {
         let keys = input::evdev::parse_keys(&e.keys).map_err(RunError::Input)?;
@@ -759,6 +771,15 @@ fn start_inputs(config: &Config, tx: &input::InputSender) -> Result<(), RunError
     #[cfg(not(feature = "gpio"))]
     if i.gpio.is_some() {
         return Err(RunError::Input("[inputs.gpio] needs a build with --features gpio".into()));
+    }
+    #[cfg(feature = "gpio")]
+    if let Some(pin) = config.feedback.gpio_led_pin {
+        let led = feedback::GpioLed::open(pin).map_err(|e| RunError::Input(e.to_string()))?;
+        tokio::spawn(feedback::run_led(led, availability.clone()));
+    }
+    #[cfg(not(feature = "gpio"))]
+    if config.feedback.gpio_led_pin.is_some() {
+        return Err(RunError::Input("[feedback] gpio_led_pin needs a build with --features gpio".into()));
     }
     Ok(())
 }
