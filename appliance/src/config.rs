@@ -64,6 +64,49 @@ pub struct Config {
     pub output: OutputConfig,
     #[serde(default)]
     pub inputs: InputsConfig,
+    #[serde(default)]
+    pub feedback: FeedbackConfig,
+    #[serde(default)]
+    pub alerts: AlertsConfig,
+}
+
+/// What the visitor sees on the button box (see `feedback`); the serial box needs no key.
+#[derive(Clone, Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct FeedbackConfig {
+    /// BCM pin (0..=27, not the button's) of the button's LED, lit when high (needs the
+    /// `gpio` feature). Steady = ready, slow blinks = showing / wait, off = closed, budget
+    /// exhausted, out of order.
+    pub gpio_led_pin: Option<u8>,
+}
+
+/// Operator alerts (see `alerts`): every alert is logged; `command` also hears it.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct AlertsConfig {
+    /// A program run for every alert raised or cleared, as an argv list (no shell), e.g.
+    /// ["/usr/local/bin/notify-museum", "--to", "av"]; it reads RESTAGE_ALERT_LEVEL, _KIND,
+    /// _MESSAGE, _STATE (raised|cleared) and _KEY from its environment.
+    pub command: Option<Vec<String>>,
+    /// Kill the command after this many ms (100..=300000). Default 10000.
+    pub command_timeout_ms: u64,
+    /// Warn this many days before the bundle expires (0..=365; 0: only when expired).
+    /// Default 14.
+    pub expiry_warn_days: u32,
+    /// Budget fractions used at which to alert, ascending (each 0 < x <= 1, 1..=8 of them);
+    /// 1.0 (used up) is critical, the rest warnings. Default [0.8, 1.0].
+    pub budget_thresholds: Vec<f64>,
+}
+
+impl Default for AlertsConfig {
+    fn default() -> Self {
+        Self {
+            command: None,
+            command_timeout_ms: 10_000,
+            expiry_warn_days: 14,
+            budget_thresholds: vec![0.8, 1.0],
+        }
+    }
 }
 
 /// What the projectors do between showings.
@@ -445,6 +488,42 @@ impl Config {
         {
             return Err(range("inputs.evdev.keys", "[]".into(), "at least one key name"));
         }
+        if let Some(led) = self.feedback.gpio_led_pin {
+            if led > 27 {
+                return Err(range("feedback.gpio_led_pin", led.to_string(), "0..=27 (BCM)"));
+            }
+            if self.inputs.gpio.as_ref().is_some_and(|g| g.pin == led) {
+                return Err(range(
+                    "feedback.gpio_led_pin",
+                    led.to_string(),
+                    "a pin other than inputs.gpio.pin",
+                ));
+            }
+        }
+        let a = &self.alerts;
+        if let Some(c) = &a.command
+            && (c.is_empty() || c[0].is_empty() || c.iter().any(|arg| arg.contains('\0')))
+        {
+            return Err(range("alerts.command", format!("{c:?}"), "[program, args...] with a program path"));
+        }
+        if !(100..=300_000).contains(&a.command_timeout_ms) {
+            return Err(range("alerts.command_timeout_ms", a.command_timeout_ms.to_string(), "100..=300000"));
+        }
+        if a.expiry_warn_days > 365 {
+            return Err(range("alerts.expiry_warn_days", a.expiry_warn_days.to_string(), "0..=365"));
+        }
+        let t = &a.budget_thresholds;
+        if t.is_empty()
+            || t.len() > 8
+            || t.iter().any(|x| !(*x > 0.0 && *x <= 1.0))
+            || t.windows(2).any(|w| w[0] >= w[1])
+        {
+            return Err(range(
+                "alerts.budget_thresholds",
+                format!("{t:?}"),
+                "1..=8 ascending fractions, each 0 < x <= 1",
+            ));
+        }
         Ok(())
     }
 }
@@ -464,6 +543,8 @@ mod tests {
         assert!(matches!(c.output, OutputConfig::Kms { .. }));
         assert!(c.inputs.serial.is_some());
         assert_eq!(c.light_check.limits(), StageLimits { max_throw_m: 6.0, min_cos: 0.01 });
+        assert_eq!(c.alerts.budget_thresholds, [0.8, 1.0]);
+        assert_eq!(c.alerts.expiry_warn_days, 14);
     }
 
     #[test]
@@ -549,6 +630,31 @@ mod tests {
         let c = Config::parse(EXAMPLE, Path::new("example.toml")).unwrap();
         assert!(c.opening_hours().is_scheduled());
         assert_eq!(c.local_zone().name(), "Europe/Amsterdam");
+    }
+
+    #[test]
+    fn feedback_and_alerts_keys_default_and_range() {
+        let base = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n[output]\nkind = \"window\"\n";
+        let c = Config::parse(base, Path::new("c.toml")).unwrap();
+        assert_eq!(c.feedback.gpio_led_pin, None);
+        assert_eq!((c.alerts.expiry_warn_days, c.alerts.budget_thresholds.clone()), (14, vec![0.8, 1.0]));
+        assert!(c.alerts.command.is_none());
+        let bad = |extra: &str, key: &str| {
+            let e = Config::parse(&format!("{base}{extra}"), Path::new("c.toml")).unwrap_err().to_string();
+            assert!(e.contains(key), "{extra}: {e}");
+        };
+        bad("[feedback]\ngpio_led_pin = 28\n", "feedback.gpio_led_pin");
+        bad("[inputs.gpio]\npin = 17\n[feedback]\ngpio_led_pin = 17\n", "feedback.gpio_led_pin");
+        bad("[alerts]\ncommand = []\n", "alerts.command");
+        bad("[alerts]\nexpiry_warn_days = 400\n", "alerts.expiry_warn_days");
+        bad("[alerts]\nbudget_thresholds = [1.0, 0.8]\n", "alerts.budget_thresholds");
+        bad("[alerts]\nbudget_thresholds = [0.5, 1.5]\n", "alerts.budget_thresholds");
+        bad("[alerts]\ncommand_timeout_ms = 0\n", "alerts.command_timeout_ms");
+        bad("[alerts]\nbogus = 1\n", "bogus");
+        let ok =
+            "[inputs.gpio]\npin = 17\n[feedback]\ngpio_led_pin = 27\n[alerts]\ncommand = [\"/bin/true\"]\n";
+        let c = Config::parse(&format!("{base}{ok}"), Path::new("c.toml")).unwrap();
+        assert_eq!(c.feedback.gpio_led_pin, Some(27));
     }
 
     #[test]

@@ -626,6 +626,33 @@ impl Ledger {
             .map_err(self.sql())
     }
 
+    /// Every exposure row of every object overlapping `[from_ms, to_ms)`, in order of start:
+    /// the light history `ledger export` writes.
+    pub fn history(&self, from_ms: i64, to_ms: i64) -> Result<Vec<(String, ExposureRow)>, LedgerError> {
+        self.conn
+            .prepare(
+                "SELECT object, kind, label, lux, start_ms, end_ms, committed FROM exposure
+                 WHERE end_ms > ?1 AND start_ms < ?2 ORDER BY start_ms, id",
+            )
+            .and_then(|mut s| {
+                s.query_map([from_ms, to_ms], |r| {
+                    Ok((
+                        r.get(0)?,
+                        ExposureRow {
+                            kind: r.get(1)?,
+                            label: r.get(2)?,
+                            lux: r.get(3)?,
+                            start_ms: r.get(4)?,
+                            end_ms: r.get(5)?,
+                            committed: r.get::<_, i64>(6)? == 1,
+                        },
+                    ))
+                })?
+                .collect()
+            })
+            .map_err(self.sql())
+    }
+
     /// Every lux-hour ever charged to `object`.
     pub fn total(&self, object: &str) -> Result<f64, LedgerError> {
         self.used(object, i64::MIN / 2, i64::MAX / 2)

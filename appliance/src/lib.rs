@@ -1,11 +1,17 @@
 //! restage-appliance: the unattended stage player (state machine, ledger, outputs, inputs).
 
+pub mod alert_command;
+pub mod alerts;
 pub mod clock;
 pub mod config;
+pub mod export;
+pub mod feedback;
 pub mod hours;
+pub mod identify;
 pub mod input;
 pub mod ledger;
 pub mod loader;
+pub mod logging;
 pub mod memory;
 pub mod notify;
 pub mod output;

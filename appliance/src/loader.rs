@@ -18,11 +18,12 @@ use std::sync::Arc;
 
 use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions};
 use restage_shared::keys::{KeyError, TrustStore};
-use restage_shared::light::{StageLimits, XrgbFrame, max_irradiance};
+use restage_shared::light::{LightCheck, LightError, StageLimits, XrgbFrame, max_irradiance};
 use restage_shared::policy::IdleMode as PolicyIdle;
 use thiserror::Error;
 
 use crate::config::IdleMode;
+use crate::identify::Pattern;
 use crate::ledger::{ActiveBundle, Budgets, Ledger, LedgerError};
 use crate::player::Look;
 use crate::show::{Policy, Response, Scene, SceneKind, Show};
@@ -67,6 +68,8 @@ pub struct FrameStore {
     bundle: VerifiedBundle<File>,
     cache: HashMap<usize, Arc<Vec<Vec<u8>>>>,
     pinned: Vec<usize>,
+    /// The stage's light-check limits (the commissioning patterns are built under them).
+    stage: StageLimits,
 }
 
 impl FrameStore {
@@ -82,6 +85,15 @@ impl FrameStore {
         self.cache.retain(|k, _| pinned.contains(k));
         self.cache.insert(s, frames.clone());
         Ok(frames)
+    }
+
+    /// Projector `k`'s commissioning pattern at `pattern`'s level (see [`crate::identify`]):
+    /// built when asked and not kept.
+    pub fn identify(&self, k: usize, pattern: Pattern) -> Result<Arc<Vec<Vec<u8>>>, LightError> {
+        let m = &self.bundle.manifest;
+        let check = LightCheck::new(&m.light, &self.bundle.certificate, &self.stage)?;
+        let sizes: Vec<(u32, u32)> = m.projectors.iter().map(|p| (p.width, p.height)).collect();
+        Ok(Arc::new(crate::identify::frames(&check, &sizes, k, pattern.level)))
     }
 
     /// Reads the pinned scenes (the idle one and the first restoration) into memory.
@@ -292,7 +304,7 @@ pub fn prepare(
     let rank = |l: Look| match l {
         Look::Off => 0,
         Look::Black => 1,
-        Look::Scene(_) => 2,
+        Look::Scene(_) | Look::Identify(_) => 2,
     };
     let idle_look = match idle {
         None => policy_idle,
@@ -310,7 +322,11 @@ pub fn prepare(
             }
         }
     };
+    let sizes: Vec<(u32, u32)> = m.projectors.iter().map(|p| (p.width, p.height)).collect();
+    let identify = crate::identify::patterns(&m.light, &bundle.certificate, &opts.stage, &sizes)
+        .map_err(|e| unplayable(format!("commissioning pattern: {e}")))?;
     let show = Show {
+        identify,
         object_id: m.object.id.clone(),
         version: m.version,
         bundle_hash: hash.clone(),
@@ -336,7 +352,7 @@ pub fn prepare(
     if let Some(&first) = show.cycle().first() {
         pinned.push(first);
     }
-    let store = FrameStore { bundle, cache: HashMap::new(), pinned };
+    let store = FrameStore { bundle, cache: HashMap::new(), pinned, stage: opts.stage };
     Ok(Prepared { path: path.into(), hash, show, store })
 }
 
@@ -402,6 +418,69 @@ pub fn load(
     let mut prepared = prepare(path, trust_dir, ledger, now_unix_ms, opts)?;
     prepared.preload()?;
     activate(prepared, ledger, now_unix_ms, opts.object_id.as_deref(), playable)
+}
+
+/// The bundle installed at a path as an operator's `status` describes it: what it is and
+/// whether its header, signature (with a trusted key), validity and version pass now. Cheap:
+/// no section is read (the player verifies everything when it loads the bundle).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Installed {
+    pub path: String,
+    pub object: Option<String>,
+    pub version: Option<u64>,
+    /// First 16 hex digits of the manifest hash.
+    pub hash: Option<String>,
+    pub expires_unix_ms: Option<i64>,
+    /// `None`: header, signature, validity and version pass; else why not.
+    pub problem: Option<String>,
+}
+
+/// Describes the bundle at `path` (see [`Installed`]) at ledger time `now_unix_ms`.
+pub fn installed(path: &Path, trust_dir: &Path, ledger: &Ledger, now_unix_ms: i64) -> Installed {
+    let mut out = Installed {
+        path: path.display().to_string(),
+        object: None,
+        version: None,
+        hash: None,
+        expires_unix_ms: None,
+        problem: None,
+    };
+    let open = || File::open(path).map_err(|e| format!("cannot open: {e}"));
+    let file = match open() {
+        Ok(f) => f,
+        Err(e) => {
+            out.problem = Some(e);
+            return out;
+        }
+    };
+    // Unauthenticated first, only to say what the file claims to be when it is refused.
+    if let Ok(r) = BundleReader::open_unauthenticated(file, Limits::default()) {
+        let m = r.manifest();
+        out.object = Some(m.object.id.clone());
+        out.version = Some(m.version);
+        out.expires_unix_ms = m.expires_unix_s.map(|s| s.saturating_mul(1000));
+    }
+    let trust = match TrustStore::load_dir(trust_dir) {
+        Ok(t) => t,
+        Err(e) => {
+            out.problem = Some(format!("trust directory {}: {e}", trust_dir.display()));
+            return out;
+        }
+    };
+    let last = |object: &str| ledger.accepted_version(object).ok().flatten();
+    let opts = VerifyOptions {
+        now_unix_s: now_unix_ms.div_euclid(1000),
+        last_accepted: &last,
+        limits: Limits::default(),
+    };
+    match open().and_then(|f| BundleReader::open(f, &trust, &opts).map_err(|e| e.to_string())) {
+        Ok(r) => {
+            let hash: String = r.manifest_hash().iter().take(8).map(|b| format!("{b:02x}")).collect();
+            out.hash = Some(hash);
+        }
+        Err(e) => out.problem = Some(e),
+    }
+    out
 }
 
 #[cfg(test)]

@@ -18,19 +18,28 @@ struct Cli {
     command: Command,
 }
 
+/// Where the packaged unit and the operator's commands find the configuration.
+const DEFAULT_CONFIG: &str = "/etc/restage/appliance.toml";
+
+#[derive(clap::Args)]
+struct ConfigArg {
+    /// The TOML configuration (documented example: systemd/restage-appliance.toml).
+    #[arg(long, default_value = DEFAULT_CONFIG)]
+    config: PathBuf,
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Run the player: outputs, inputs, exposure timer and ledger (the systemd service).
     Run {
-        /// The TOML configuration (see systemd/restage-appliance.toml).
-        #[arg(long)]
-        config: PathBuf,
+        #[command(flatten)]
+        config: ConfigArg,
     },
     /// Print the light budget used and left, the active bundle, warnings and last showings,
     /// from the ledger (works while the appliance runs).
     Status {
-        #[arg(long)]
-        config: PathBuf,
+        #[command(flatten)]
+        config: ConfigArg,
         /// Print JSON instead of text.
         #[arg(long)]
         json: bool,
@@ -39,16 +48,33 @@ enum Command {
     /// active bundle and ask a running appliance to reload.
     Install {
         bundle: PathBuf,
-        #[arg(long)]
-        config: PathBuf,
+        #[command(flatten)]
+        config: ConfigArg,
     },
-    /// Acknowledge that this stage's ledger is lost or was replaced (the appliance refuses
-    /// light until then): the old file is kept aside, a fresh ledger records REASON. Run it
-    /// with the appliance stopped.
+    /// Show projector K's commissioning pattern (grid, frame and its number) on the running
+    /// appliance, the others black: which projector is which, and where it lands. Only while
+    /// idle; paid from the light budget like any light.
+    Identify {
+        #[command(flatten)]
+        config: ConfigArg,
+        /// The projector, counted from 1 in the bundle's order.
+        #[arg(long, value_parser = clap::value_parser!(u8).range(1..))]
+        projector: u8,
+        /// How long, in seconds.
+        #[arg(long, default_value_t = restage_appliance::input::IDENTIFY_DEFAULT_S,
+              value_parser = clap::value_parser!(u16).range(1..=i64::from(restage_appliance::input::IDENTIFY_MAX_S)))]
+        seconds: u16,
+    },
+    /// The light ledger: export its history, or acknowledge a lost one.
+    Ledger {
+        #[command(subcommand)]
+        command: LedgerCommand,
+    },
+    /// Same as `ledger reset` (kept for scripts written before `ledger`).
+    #[command(hide = true)]
     LedgerReset {
-        #[arg(long)]
-        config: PathBuf,
-        /// Why (recorded in the new ledger), e.g. "disk replaced after failure, ticket 1234".
+        #[command(flatten)]
+        config: ConfigArg,
         #[arg(long)]
         reason: String,
     },
@@ -69,20 +95,97 @@ enum Command {
     },
 }
 
+#[derive(Subcommand)]
+enum LedgerCommand {
+    /// Write the light history (every exposure, with lux, times and lux·h) as CSV: for the
+    /// conservator's records or a loan agreement's light report.
+    Export {
+        #[command(flatten)]
+        config: ConfigArg,
+        /// CSV output (the only format; the flag says so in scripts).
+        #[arg(long, required = true)]
+        csv: bool,
+        /// Write to FILE instead of standard output (refuses to overwrite an existing file).
+        #[arg(long, value_name = "FILE")]
+        out: Option<PathBuf>,
+    },
+    /// Acknowledge that this stage's ledger is lost or was replaced (the appliance refuses
+    /// light until then): the old file is kept aside, a fresh ledger records REASON. Run it
+    /// with the appliance stopped.
+    Reset {
+        #[command(flatten)]
+        config: ConfigArg,
+        /// Why (recorded in the new ledger), e.g. "disk replaced after failure, ticket 1234".
+        #[arg(long)]
+        reason: String,
+    },
+}
+
 fn main() -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(EnvFilter::try_from_env("RESTAGE_LOG").unwrap_or_else(|_| EnvFilter::new("info")))
-        .with_writer(std::io::stderr)
-        .init();
+    // Colour on a terminal only; priority prefixes, no timestamps under systemd.
+    restage_appliance::logging::init(
+        EnvFilter::try_from_env("RESTAGE_LOG").unwrap_or_else(|_| EnvFilter::new("info")),
+    );
     match Cli::parse().command {
-        Command::Run { config } => run(&config),
-        Command::Status { config, json } => status(&config, json),
-        Command::Install { bundle, config } => install(&bundle, &config),
+        Command::Run { config } => run(&config.config),
+        Command::Status { config, json } => status(&config.config, json),
+        Command::Install { bundle, config } => install(&bundle, &config.config),
         Command::Verify { bundle, trust, max_throw_m, min_cos } => {
             verify(&bundle, &trust, restage_shared::light::StageLimits { max_throw_m, min_cos })
         }
-        Command::LedgerReset { config, reason } => ledger_reset(&config, &reason),
+        Command::Ledger { command: LedgerCommand::Reset { config, reason } }
+        | Command::LedgerReset { config, reason } => ledger_reset(&config.config, &reason),
+        Command::Identify { config, projector, seconds } => identify(&config.config, projector, seconds),
+        Command::Ledger { command: LedgerCommand::Export { config, csv: _, out } } => {
+            ledger_export(&config.config, out.as_deref())
+        }
     }
+}
+
+fn ledger_export(config: &Path, out: Option<&Path>) -> Result<()> {
+    let config = Config::load(config)?;
+    let ledger = open_ledger_read_only(&config)?;
+    let rows = ledger.history(i64::MIN / 2, i64::MAX / 2)?;
+    let utc = |ms: i64| restage_shared::bundle::utc(ms.div_euclid(1000));
+    let zone = config.local_zone();
+    let local = |ms: i64| zone.local_time_s(ms);
+    match out {
+        Some(path) => {
+            let file = std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(path)
+                .with_context(|| format!("creating {}", path.display()))?;
+            restage_appliance::export::write_csv(&rows, utc, local, std::io::BufWriter::new(file))
+                .with_context(|| format!("writing {}", path.display()))?;
+            eprintln!("{} exposure rows written to {}", rows.len(), path.display());
+        }
+        None => restage_appliance::export::write_csv(&rows, utc, local, std::io::stdout().lock())?,
+    }
+    Ok(())
+}
+
+fn identify(config: &Path, projector: u8, seconds: u16) -> Result<()> {
+    let config = Config::load(config)?;
+    let Some(sock) = &config.inputs.control_socket else {
+        bail!("identify talks to the running appliance: set [inputs] control_socket in the configuration");
+    };
+    let answer = ask(sock, &format!("identify {projector} {seconds}"))
+        .with_context(|| format!("no running appliance answered on {}", sock.display()))?;
+    match answer.strip_prefix("error: ") {
+        Some(why) => bail!("projector {projector}: {why}"),
+        None => println!("{answer}"),
+    }
+    Ok(())
+}
+
+/// The stage's ledger, read-only (the appliance may be running).
+fn open_ledger_read_only(config: &Config) -> Result<Ledger> {
+    let path = config.state_dir.join(LEDGER_FILE);
+    if !path.exists() {
+        bail!("no ledger at {} (has the appliance run yet?)", path.display());
+    }
+    Ok(Ledger::open_read_only(&path, config.local_zone().clone())?)
 }
 fn ledger_reset(config: &Path, reason: &str) -> Result<()> {
     let config = Config::load(config)?;
@@ -126,31 +229,52 @@ fn run(config: &Path) -> Result<()> {
 
 fn status(config: &Path, json: bool) -> Result<()> {
     let config = Config::load(config)?;
-    let path = config.state_dir.join(LEDGER_FILE);
-    if !path.exists() {
-        bail!("no ledger at {} (has the appliance run yet?)", path.display());
-    }
-    let ledger = Ledger::open_read_only(&path, config.local_zone().clone())?;
+    let ledger = open_ledger_read_only(&config)?;
     let now = ledger_now(&ledger)?;
     let s = ledger.status(now)?;
-    let zone = config.local_zone();
+    let installed = loader::installed(&config.bundle_path(), &config.trust_dir, &ledger, now);
     let mut out = std::io::stdout().lock();
     if json {
-        writeln!(out, "{}", serde_json::to_string_pretty(&s)?)?;
+        let v = serde_json::json!({ "ledger": s, "installed": installed });
+        writeln!(out, "{}", serde_json::to_string_pretty(&v)?)?;
         return Ok(());
     }
+    let zone = config.local_zone();
+    let time = |ms: i64| zone.local_time(ms);
+    writeln!(out, "now: {} ({})", time(now), zone.name())?;
     match &s.active {
         Some(a) => writeln!(
             out,
-            "active bundle: {} version {} ({}), {}",
+            "playing: {} version {} ({}), since {}",
             a.object,
             a.version,
             &a.bundle_hash[..16.min(a.bundle_hash.len())],
-            a.path
+            time(a.loaded_ms)
         )?,
-        None => writeln!(out, "active bundle: none")?,
+        None => writeln!(
+            out,
+            "playing: nothing yet (the appliance plays the installed bundle once it starts or reloads)"
+        )?,
     }
-    writeln!(out, "now: {} ({})", s.now_local, s.time_zone)?;
+    let what = match (&installed.object, installed.version) {
+        (Some(o), Some(v)) => format!("{o} version {v}"),
+        _ => "no readable bundle".to_string(),
+    };
+    let expiry = match installed.expires_unix_ms {
+        Some(e) => {
+            let days = (e - now) as f64 / 86_400_000.0;
+            if days >= 0.0 {
+                format!("expires {} (in {days:.0} days)", time(e))
+            } else {
+                format!("EXPIRED {} ({:.0} days ago)", time(e), -days)
+            }
+        }
+        None => "no expiry".to_string(),
+    };
+    writeln!(out, "installed: {what} at {}; {expiry}", installed.path)?;
+    if let Some(p) = &installed.problem {
+        writeln!(out, "  REFUSED: {p}")?;
+    }
     let opening = config.opening_hours().at(now);
     if config.opening_hours().is_scheduled() {
         writeln!(out, "opening hours: {}", opening.reason)?;
@@ -181,7 +305,7 @@ fn status(config: &Path, json: bool) -> Result<()> {
         writeln!(
             out,
             "  {} +{:.1} s  {}  (ended by {})",
-            zone.local_time(sh.started_ms),
+            time(sh.started_ms),
             (sh.ended_ms - sh.started_ms) as f64 / 1000.0,
             sh.scenes,
             sh.ended_by
@@ -189,7 +313,7 @@ fn status(config: &Path, json: bool) -> Result<()> {
     }
     writeln!(out, "last events:")?;
     for e in &s.last_events {
-        writeln!(out, "  {} {}: {}", zone.local_time(e.at_ms), e.kind, e.detail)?;
+        writeln!(out, "  {} {}: {}", time(e.at_ms), e.kind, e.detail)?;
     }
     Ok(())
 }

@@ -36,6 +36,9 @@ pub enum Event {
     Close { reason: String },
     /// Opening hours began: back to idle (after any cooldown still running).
     Open,
+    /// Operator: show projector `projector`'s commissioning pattern for `ms` (from idle only;
+    /// paid like any light), then back to idle.
+    Identify { projector: usize, ms: u64 },
 }
 
 /// What the projectors show.
@@ -47,6 +50,8 @@ pub enum Look {
     Black,
     /// Outputs blanked (dark).
     Off,
+    /// Projector `k`'s commissioning pattern (`identify`), the others black.
+    Identify(usize),
 }
 
 /// What the outputs must do.
@@ -76,6 +81,7 @@ pub enum LightKind {
     Showing,
     Fade,
     Idle,
+    Identify,
 }
 
 impl LightKind {
@@ -84,6 +90,7 @@ impl LightKind {
             LightKind::Showing => "showing",
             LightKind::Fade => "fade",
             LightKind::Idle => "idle",
+            LightKind::Identify => "identify",
         }
     }
 }
@@ -160,6 +167,11 @@ pub enum State {
     Cooldown {
         until_ms: u64,
     },
+    /// The operator's commissioning pattern on one projector, until `until_ms`.
+    Identifying {
+        projector: usize,
+        until_ms: u64,
+    },
     Exhausted {
         reason: String,
         retry_ms: u64,
@@ -181,6 +193,7 @@ impl State {
             State::Showing { .. } => "showing",
             State::Ending { .. } => "ending",
             State::Cooldown { .. } => "cooldown",
+            State::Identifying { .. } => "identifying",
             State::Exhausted { .. } => "budget-exhausted",
             State::Fault { .. } => "fault",
             State::Closed { .. } => "closed",
@@ -326,7 +339,7 @@ impl Player {
                 // Rounded up, so the frame computed at the deadline is the next one.
                 Some(fade_start_ms + (self.fade_ms() * u64::from(step + 1)).div_ceil(u64::from(*steps)))
             }
-            State::Cooldown { until_ms } => Some(*until_ms),
+            State::Cooldown { until_ms } | State::Identifying { until_ms, .. } => Some(*until_ms),
             State::Exhausted { retry_ms, .. } => Some(*retry_ms),
             State::Dark { .. } | State::Idle | State::Fault { .. } | State::Closed { .. } => None,
         }
@@ -339,6 +352,7 @@ impl Player {
             Event::Press => self.press(now, acct, &mut out),
             Event::Release => {}
             Event::Tick => {}
+            Event::Identify { projector, ms } => self.identify(now, projector, ms, acct, &mut out),
             Event::Stop => {
                 self.go_dark(now, &mut out, State::Dark { reason: "stopped by operator".into() }, "stop")
             }
@@ -395,9 +409,12 @@ impl Player {
                 self.begin_ending(now, scene, Look::Off, acct, out);
             }
             State::Ending { .. } | State::Dark { .. } | State::Fault { .. } => {}
-            State::Idle | State::Cooldown { .. } | State::Exhausted { .. } | State::Closed { .. } => {
-                self.go_dark(now, out, State::Closed { reason }, "closing")
-            }
+            // The commissioning pattern is an operator's, not a showing: no fade.
+            State::Idle
+            | State::Cooldown { .. }
+            | State::Identifying { .. }
+            | State::Exhausted { .. }
+            | State::Closed { .. } => self.go_dark(now, out, State::Closed { reason }, "closing"),
         }
     }
 
@@ -460,10 +477,29 @@ impl Player {
             // at again by its own timer, never by a press): presses do nothing.
             State::Ending { .. }
             | State::Cooldown { .. }
+            | State::Identifying { .. }
             | State::Dark { .. }
             | State::Fault { .. }
             | State::Exhausted { .. }
             | State::Closed { .. } => {}
+        }
+    }
+
+    /// The commissioning pattern: only from idle (never during or right after a showing), only
+    /// for a projector with a pattern within the bound, paid at the pattern's peak. It is
+    /// light on the object like a showing's, so the policy's longest showing caps it and a
+    /// cooldown follows it.
+    fn identify(&mut self, now: Now, k: usize, ms: u64, acct: &mut dyn Accountant, out: &mut Vec<Command>) {
+        let has_pattern = self.show.as_ref().is_some_and(|s| s.identify.get(k).is_some_and(Option::is_some));
+        if self.state != State::Idle || !has_pattern {
+            return;
+        }
+        match self.switch_light(now, Look::Identify(k), LightKind::Identify, acct, out) {
+            Ok(()) => {
+                let until_ms = now.mono_ms + ms.min(self.max_showing_ms());
+                self.state = State::Identifying { projector: k, until_ms };
+            }
+            Err(r) => self.refused(now, r, out),
         }
     }
 
@@ -495,6 +531,8 @@ impl Player {
                     }
                 }
                 State::Cooldown { .. } => self.enter_idle(now, acct, out),
+                // Like a showing's end: the idle look, then the object rests.
+                State::Identifying { .. } => self.end_fade(now, acct, out),
                 State::Exhausted { .. } => self.enter_idle(now, acct, out),
                 State::Dark { .. } | State::Idle | State::Fault { .. } | State::Closed { .. } => return,
             }
@@ -622,6 +660,7 @@ impl Player {
         }
         let label = match look {
             Look::Scene(s) => self.scene_id(s),
+            Look::Identify(k) => format!("identify:{k}"),
             _ => "black".into(),
         };
         self.reserve_and_commit(now, self.look_lux(look), kind, &label, acct)?;
@@ -684,6 +723,14 @@ impl Player {
             Look::Scene(i) => show.scenes[i].peak_lux.max(show.black_lux),
             Look::Black => show.black_lux,
             Look::Off => 0.0,
+            // Its peak counts the other projectors' black level (their frames are black).
+            Look::Identify(k) => show
+                .identify
+                .get(k)
+                .copied()
+                .flatten()
+                .map_or(f64::INFINITY, |p| p.peak_lux)
+                .max(show.black_lux),
         }
     }
 

@@ -46,6 +46,7 @@ fn show(idle: IdleMode) -> Arc<Show> {
             IdleMode::Original => Look::Scene(0),
         },
         expires_unix_ms: None,
+        identify: vec![Some(crate::identify::Pattern { level: 200, peak_lux: 35.0 })],
     })
 }
 
@@ -173,6 +174,7 @@ impl Sim {
             Look::Scene(i) => s.scenes[i].peak_lux,
             Look::Black => s.black_lux,
             Look::Off => 0.0,
+            Look::Identify(_) => 35.0,
         }
     }
 
@@ -516,6 +518,7 @@ enum Op {
     Shrink,
     Close,
     Open,
+    Identify(u64),
 }
 
 fn op() -> impl Strategy<Value = Op> {
@@ -529,6 +532,7 @@ fn op() -> impl Strategy<Value = Op> {
         1 => Just(Op::Shrink),
         2 => Just(Op::Close),
         2 => Just(Op::Open),
+        1 => (1u64..60_000).prop_map(Op::Identify),
     ]
 }
 
@@ -551,6 +555,7 @@ proptest! {
                 Op::Shrink => s.books.budget_lux_ms = s.books.used() + 50.0 * 3_000.0,
                 Op::Close => s.event(Event::Close { reason: "closed: opens Tue 10:00".into() }),
                 Op::Open => s.event(Event::Open),
+                Op::Identify(ms) => s.event(Event::Identify { projector: 0, ms }),
             }
             if matches!(
                 s.p.state(),
@@ -748,7 +753,53 @@ fn a_stop_or_fault_while_closed_keeps_its_reason_and_the_stage_stays_closed() {
     // The operator's reload brings the bundle back, still closed.
     s.event(Event::Load(show(s.idle)));
     assert_eq!(s.state(), "closed");
+    // No commissioning pattern while closed either (identify is from idle only).
+    s.event(close());
+    s.event(Event::Identify { projector: 0, ms: 10_000 });
+    assert_eq!(s.state(), "closed");
+    assert_eq!(s.p.look(), Look::Off);
     s.event(Event::Open);
     assert_eq!(s.state(), "idle");
+    s.verify_invariants();
+}
+
+#[test]
+fn identify_from_idle_is_paid_and_ends_by_itself() {
+    let mut s = Sim::new(IdleMode::Original, 1e9);
+    s.event(Event::Identify { projector: 0, ms: 10_000 });
+    assert_eq!(s.state(), "identifying");
+    assert_eq!(s.p.look(), Look::Identify(0));
+    let lease = s.books.leases.values().last().unwrap().clone();
+    assert_eq!((lease.kind, lease.lux), (LightKind::Identify, 35.0));
+    // A visitor's press does not cut into it (nor start a showing on top of it).
+    s.event(Event::Press);
+    assert_eq!(s.state(), "identifying");
+    s.advance(10_000);
+    assert_eq!(s.state(), "cooldown");
+    assert_eq!(s.p.look(), Look::Scene(0));
+    s.advance(COOLDOWN + LATENCY + 1);
+    assert_eq!(s.state(), "idle");
+    // Never longer than the policy's longest showing; stop ends it at once.
+    s.event(Event::Identify { projector: 0, ms: 10 * MAX_SHOW });
+    s.advance(MAX_SHOW - 1);
+    assert_eq!(s.state(), "identifying");
+    s.event(Event::Stop);
+    assert_eq!(s.p.look(), Look::Off);
+    s.verify_invariants();
+}
+
+#[test]
+fn identify_only_from_idle_and_only_a_projector_with_a_pattern() {
+    let mut s = Sim::new(IdleMode::Black, 1e9);
+    s.event(Event::Press);
+    s.event(Event::Identify { projector: 0, ms: 10_000 });
+    assert_eq!(s.state(), "showing");
+    s.advance(MAX_SHOW);
+    assert_eq!(s.state(), "cooldown");
+    s.event(Event::Identify { projector: 0, ms: 10_000 });
+    assert_eq!(s.state(), "cooldown", "the object rests after a showing, also from test patterns");
+    s.advance(COOLDOWN + LATENCY + 1);
+    s.event(Event::Identify { projector: 1, ms: 10_000 });
+    assert_eq!(s.state(), "idle", "projector 1 does not exist");
     s.verify_invariants();
 }

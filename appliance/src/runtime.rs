@@ -11,10 +11,11 @@ use std::time::Duration;
 
 use thiserror::Error;
 use tokio::signal::unix::{SignalKind, signal};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
 use crate::clock::{Clock, LedgerClock, SystemTime, TimeSource, monotonic_us};
 use crate::config::{Config, LEDGER_FILE, OutputConfig};
+use crate::feedback::{self, Availability};
 use crate::input::{self, Control, InputEvent};
 use crate::ledger::{Ledger, LedgerError};
 use crate::loader::{self, FrameStore, LoadError, Prepared};
@@ -130,6 +131,8 @@ pub struct App {
     reported_skew_ms: i64,
     /// When the opening hours next change (ledger Unix ms); `None`: no change ahead.
     hours_change_ms: Option<i64>,
+    /// What the visitor's button box shows (serial `LED` lines, the GPIO LED).
+    availability: watch::Sender<Availability>,
 }
 
 impl std::fmt::Debug for App {
@@ -233,6 +236,14 @@ impl App {
                 let frames = store
                     .scene(s)
                     .map_err(|e| format!("bundle frames of scene {}: {e}", show.scenes[s].id))?;
+                Ok(LookFrames::Scene(frames))
+            }
+            Look::Identify(k) => {
+                let pattern = show.identify.get(k).copied().flatten().ok_or("no commissioning pattern")?;
+                let store = self.store.as_ref().ok_or("no bundle loaded")?;
+                let frames = store
+                    .identify(k, pattern)
+                    .map_err(|e| format!("commissioning pattern of projector {}: {e}", k + 1))?;
                 Ok(LookFrames::Scene(frames))
             }
             Look::Black | Look::Off => {
@@ -428,6 +439,10 @@ impl App {
     }
 
     fn report_status(&mut self) {
+        feedback::publish(
+            &self.availability,
+            feedback::availability(self.player.state(), self.player.is_closed()),
+        );
         let s = match self.player.state() {
             State::Dark { reason } => format!("dark: {reason}"),
             State::Fault { reason } => format!("fault: {reason}"),
@@ -484,6 +499,7 @@ impl App {
                         return true;
                     }
                     Control::Status => self.status_json(),
+                    Control::Identify { projector, seconds } => self.identify(projector, seconds),
                 };
                 if let Some(r) = reply {
                     let _ = r.send(answer);
@@ -497,6 +513,36 @@ impl App {
             }
         }
         true
+    }
+
+    /// The operator's `identify K S`: projector K (1-based) shows its commissioning pattern
+    /// for S seconds, if the player is idle; the answer says what happened.
+    fn identify(&mut self, projector: u8, seconds: u16) -> String {
+        let Some(show) = self.player.show().cloned() else {
+            return "error: no bundle loaded".into();
+        };
+        let k = usize::from(projector) - 1;
+        let Some(pattern) = show.identify.get(k) else {
+            return format!("error: the bundle has {} projectors, not {projector}", show.projectors.len());
+        };
+        let Some(pattern) = pattern else {
+            return format!("error: projector {projector} has no pixel it may light within the bound");
+        };
+        self.step(Event::Identify { projector: k, ms: u64::from(seconds) * 1000 });
+        match self.player.state() {
+            State::Identifying { .. } => {
+                let _ = self.ledger.log_event(
+                    self.now().unix_ms,
+                    "identify",
+                    &format!("projector {projector} for {seconds} s at {:.1} lx", pattern.peak_lux),
+                );
+                format!(
+                    "ok identifying projector {projector} for {seconds} s ({:.1} lx peak, paid)",
+                    pattern.peak_lux
+                )
+            }
+            s => format!("error: not idle ({}); try again when the player is idle", s.name()),
+        }
     }
 
     /// Milliseconds until the player needs a tick or the bundle expires.
@@ -652,7 +698,9 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         ledger.log_event(anchor_ms, "clock", &detail)?;
     }
     tracing::info!(ledger_ms = anchor_ms, boot_ms = anchor_boot_ms, "ledger clock anchored");
-    start_inputs(&config, &tx)?;
+    // Out of order until the player says otherwise.
+    let (availability_tx, availability_rx) = watch::channel(Availability::OutOfOrder);
+    start_inputs(&config, &tx, &availability_rx)?;
 
     let p = &config.player;
     let settings = PlayerSettings {
@@ -684,6 +732,7 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         ledger_retry_ms: None,
         reported_skew_ms,
         hours_change_ms: None,
+        availability: availability_tx,
     };
     // Closed before the bundle loads: outside opening hours the first light never comes on.
     app.watch_hours();
@@ -733,7 +782,11 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
     Ok(())
 }
 
-fn start_inputs(config: &Config, tx: &input::InputSender) -> Result<(), RunError> {
+fn start_inputs(
+    config: &Config,
+    tx: &input::InputSender,
+    availability: &watch::Receiver<Availability>,
+) -> Result<(), RunError> {
     let i = &config.inputs;
     if i.stdin {
         tokio::spawn(input::stdin::run(tx.clone()));
@@ -744,7 +797,7 @@ fn start_inputs(config: &Config, tx: &input::InputSender) -> Result<(), RunError
         tokio::spawn(input::socket::run(listener, path.clone(), tx.clone()));
     }
     if let Some(s) = &i.serial {
-        tokio::spawn(input::serial::run(s.path.clone(), s.baud, tx.clone()));
+        tokio::spawn(input::serial::run(s.path.clone(), s.baud, tx.clone(), availability.clone()));
     }
     if let Some(e) = &i.evdev {
         let keys = input::evdev::parse_keys(&e.keys).map_err(RunError::Input)?;
@@ -760,6 +813,15 @@ fn start_inputs(config: &Config, tx: &input::InputSender) -> Result<(), RunError
     #[cfg(not(feature = "gpio"))]
     if i.gpio.is_some() {
         return Err(RunError::Input("[inputs.gpio] needs a build with --features gpio".into()));
+    }
+    #[cfg(feature = "gpio")]
+    if let Some(pin) = config.feedback.gpio_led_pin {
+        let led = feedback::GpioLed::open(pin).map_err(|e| RunError::Input(e.to_string()))?;
+        tokio::spawn(feedback::run_led(led, availability.clone()));
+    }
+    #[cfg(not(feature = "gpio"))]
+    if config.feedback.gpio_led_pin.is_some() {
+        return Err(RunError::Input("[feedback] gpio_led_pin needs a build with --features gpio".into()));
     }
     Ok(())
 }

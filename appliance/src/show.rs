@@ -86,6 +86,8 @@ pub struct Show {
     pub idle: Look,
     /// When the bundle stops being valid (Unix ms), if ever.
     pub expires_unix_ms: Option<i64>,
+    /// Each projector's commissioning pattern within the bound (`identify`), if it has one.
+    pub identify: Vec<Option<crate::identify::Pattern>>,
 }
 
 impl Show {

@@ -129,6 +129,14 @@ impl LocalZone {
             None => format!("(out of range: {unix_ms} Unix ms)"),
         }
     }
+
+    /// As [`LocalZone::local_time`] to the second, e.g. "2026-03-29 10:15:02 CEST" (records).
+    pub fn local_time_s(&self, unix_ms: i64) -> String {
+        match self.zoned(unix_ms) {
+            Some(z) => z.strftime("%Y-%m-%d %H:%M:%S %Z").to_string(),
+            None => format!("(out of range: {unix_ms} Unix ms)"),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -187,6 +195,7 @@ mod tests {
         let ams = LocalZone::named("Europe/Amsterdam").unwrap();
         assert_eq!(ams.local_time(at("2026-03-29T08:15:00Z")), "2026-03-29 10:15 CEST");
         assert_eq!(ams.local_time(at("2026-01-10T08:15:00Z")), "2026-01-10 09:15 CET");
+        assert_eq!(ams.local_time_s(at("2026-01-10T08:15:02.5Z")), "2026-01-10 09:15:02 CET");
         assert_eq!(ams.local_date(at("2026-03-28T23:30:00Z")), "2026-03-29");
         assert_eq!(LocalZone::utc().local_time(0), "1970-01-01 00:00 UTC");
         assert_eq!(LocalZone::utc().name(), "UTC");

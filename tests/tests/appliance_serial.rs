@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 use nix::pty::openpty;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use restage_appliance::feedback::Availability;
 use restage_appliance::input::{InputEvent, serial};
 use tokio::sync::mpsc;
 
@@ -27,7 +28,9 @@ impl Box_ {
         let (tx, events) = mpsc::channel(restage_appliance::input::CHANNEL_CAPACITY);
         let rt = std::thread::spawn(move || {
             let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
-            rt.block_on(serial::run(path, 115_200, tx));
+            // The box's LED lines are not looked at here; they only interleave with PONGs.
+            let (_publish, availability) = tokio::sync::watch::channel(Availability::Ready);
+            rt.block_on(serial::run(path, 115_200, tx, availability));
         });
         let master = std::fs::File::from(pty.master);
         let mut reader = master.try_clone().unwrap();

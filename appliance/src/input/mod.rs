@@ -21,18 +21,65 @@ pub enum Control {
     Status,
     Stop,
     Reload,
+    /// Projector `projector` (1-based, as installers count) shows its commissioning pattern
+    /// for `seconds`.
+    Identify {
+        projector: u8,
+        seconds: u16,
+    },
 }
 
+/// Longest commissioning pattern, seconds: an operator who walks away leaves no light on.
+pub const IDENTIFY_MAX_S: u16 = 120;
+/// Default length of `identify K`.
+pub const IDENTIFY_DEFAULT_S: u16 = 10;
+
 impl Control {
-    /// Parses one command line (`press`, `status`, `stop`, `reload`; case and surrounding
-    /// blanks ignored).
+    /// Parses one command line (`press`, `status`, `stop`, `reload`, `identify K [SECONDS]`;
+    /// case and surrounding blanks ignored).
     pub fn parse(line: &str) -> Option<Control> {
-        match line.trim().to_ascii_lowercase().as_str() {
-            "press" => Some(Control::Press),
-            "status" => Some(Control::Status),
-            "stop" => Some(Control::Stop),
-            "reload" => Some(Control::Reload),
-            _ => None,
+        let line = line.trim().to_ascii_lowercase();
+        let mut words = line.split_ascii_whitespace();
+        let command = match (words.next()?, words.next(), words.next()) {
+            ("press", None, _) => Control::Press,
+            ("status", None, _) => Control::Status,
+            ("stop", None, _) => Control::Stop,
+            ("reload", None, _) => Control::Reload,
+            ("identify", Some(k), seconds) => {
+                let projector = k.parse().ok().filter(|&k| k >= 1)?;
+                let seconds = match seconds {
+                    Some(s) => s.parse().ok().filter(|s| (1..=IDENTIFY_MAX_S).contains(s))?,
+                    None => IDENTIFY_DEFAULT_S,
+                };
+                Control::Identify { projector, seconds }
+            }
+            _ => return None,
+        };
+        words.next().is_none().then_some(command)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn control_lines() {
+        assert_eq!(Control::parse(" PRESS \n"), Some(Control::Press));
+        assert_eq!(Control::parse("identify 2"), Some(Control::Identify { projector: 2, seconds: 10 }));
+        assert_eq!(Control::parse("identify 3 30"), Some(Control::Identify { projector: 3, seconds: 30 }));
+        for bad in [
+            "identify",
+            "identify 0",
+            "identify -1",
+            "identify 2 0",
+            "identify 2 121",
+            "identify 2 5 x",
+            "press now",
+            "",
+            "identify 300",
+        ] {
+            assert_eq!(Control::parse(bad), None, "{bad:?}");
         }
     }
 }

@@ -268,6 +268,11 @@ impl<R: Read + Seek> BundleReader<R> {
         &self.manifest
     }
 
+    /// BLAKE3 of the signed manifest bytes: the bundle's identity in the ledger.
+    pub fn manifest_hash(&self) -> &[u8; 32] {
+        &self.manifest_hash
+    }
+
     /// Reads every section in order, checks its hash, decompresses it, passes it to `keep`,
     /// decodes and checks the certificate, and refuses any scene that lights a pixel the
     /// certificate does not vouch for or whose recomputed peak irradiance exceeds the light
