@@ -244,7 +244,7 @@ mod tests {
     #[test]
     fn led_words_are_the_documented_ones() {
         let words: Vec<_> = states().into_iter().map(|(s, _)| availability(&s, false).led_word()).collect();
-        assert_eq!(words, ["FAULT", "READY", "SHOWING", "SHOWING", "WAIT", "EXHAUSTED", "FAULT"]);
+        assert_eq!(words, ["FAULT", "READY", "SHOWING", "SHOWING", "WAIT", "WAIT", "EXHAUSTED", "FAULT"]);
         assert_eq!(Availability::Closed.serial_line(), "LED CLOSED\n");
     }
 
