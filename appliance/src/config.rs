@@ -44,6 +44,9 @@ pub struct Config {
     pub output: OutputConfig,
     #[serde(default)]
     pub inputs: InputsConfig,
+    /// The read-only remote status page (`[status]`; off by default).
+    #[serde(default)]
+    pub status: crate::status::StatusConfig,
 }
 
 /// What the projectors do between showings.
@@ -377,6 +380,7 @@ impl Config {
         {
             return Err(range("inputs.evdev.keys", "[]".into(), "at least one key name"));
         }
+        self.status.check(path)?;
         Ok(())
     }
 }
