@@ -33,17 +33,23 @@ main { max-width: 1140px; margin: 0 auto; padding: 20px 24px 32px; }
 .alert .since { color: var(--muted); font-size: 15px; float: right; }
 .a-critical { border-color: #b3261e; background: #fdecea; } .a-warning { border-color: #c77700; background: #fff4e0; }
 .a-info { border-color: #1f5f99; background: #e8f1fa; }
-.grid { display: grid; grid-template-columns: repeat(auto-fit, minmax(340px, 1fr)); gap: 16px; margin-top: 16px; }
+.grid { display: grid; grid-template-columns: 1fr 1fr; gap: 16px; margin-top: 16px; }
+@media (max-width: 800px) { .grid { grid-template-columns: 1fr; } .banner .when { text-align: left; } }
 section { background: var(--card); border-radius: 12px; padding: 16px 20px; box-shadow: 0 1px 3px rgba(0,0,0,.08); }
 section.wide { grid-column: 1 / -1; }
 h2 { font-size: 15px; text-transform: uppercase; letter-spacing: .08em; color: var(--muted); margin: 0 0 10px; }
 table { width: 100%; border-collapse: collapse; font-variant-numeric: tabular-nums; }
 th, td { text-align: left; padding: 6px 8px; border-bottom: 1px solid var(--line); vertical-align: top; }
 th { font-size: 14px; color: var(--muted); font-weight: 600; }
-tr:last-child td { border-bottom: none; }
+tr:last-child td, tr:last-child th { border-bottom: none; }
+td.t { white-space: nowrap; }
 td.num, th.num { text-align: right; }
 .kv th { width: 40%; font-size: 16px; color: var(--muted); font-weight: 500; }
-.bar { height: 12px; background: #e3e7ec; border-radius: 6px; overflow: hidden; min-width: 90px; }
+.window { margin-bottom: 14px; }
+.window .name { font-weight: 600; } .window .fig { font-size: 20px; margin: 2px 0 6px; }
+.window .fig b { font-size: 26px; font-variant-numeric: tabular-nums; }
+.window .left { color: var(--muted); font-size: 15px; margin-top: 3px; }
+.bar { height: 14px; background: #e3e7ec; border-radius: 7px; overflow: hidden; }
 .bar > div { height: 100%; background: #2e8b57; }
 .bar.warn > div { background: #d98b00; } .bar.over > div { background: #b3261e; }
 .ok { color: #1e7d3a; font-weight: 700; } .bad { color: #b3261e; font-weight: 700; }
@@ -164,11 +170,8 @@ fn budget(s: &Snapshot) -> Markup {
             h2 { "Light budget" }
             @match &s.budget {
                 BudgetInfo::Known(b) => {
-                    table {
-                        tr { th { "window" } th.num { "used" } th.num { "left" } th.num { "budget" } th { "lux·h" } }
-                        (window_row(&format!("today ({})", b.day), &b.daily))
-                        (window_row("last 365 days", &b.annual))
-                    }
+                    (window(&format!("Today ({})", b.day), &b.daily))
+                    (window("Last 365 days", &b.annual))
                     table.kv {
                         tr { th { "total (this object)" } td.num { (lux_h(b.total_lux_hours)) " lux·h" } }
                         @if b.open_reservations > 0 {
@@ -182,7 +185,7 @@ fn budget(s: &Snapshot) -> Markup {
     }
 }
 
-fn window_row(name: &str, w: &Window) -> Markup {
+fn window(name: &str, w: &Window) -> Markup {
     let fraction = w.budget_lux_hours.filter(|b| *b > 0.0).map(|b| w.used_lux_hours / b);
     let class = match fraction {
         Some(f) if f >= 1.0 => "bar over",
@@ -190,18 +193,17 @@ fn window_row(name: &str, w: &Window) -> Markup {
         _ => "bar",
     };
     html! {
-        tr {
-            td { (name) }
-            td.num { (lux_h(w.used_lux_hours)) }
-            td.num { (opt_lux_h(w.left_lux_hours)) }
-            td.num { (opt_lux_h(w.budget_lux_hours)) }
-            td {
-                @if let Some(f) = fraction {
-                    div class=(class) title={ (percent(f)) " used" } {
-                        div style={ "width:" (percent(f.min(1.0))) } {}
-                    }
-                }
+        div.window {
+            div.name { (name) }
+            div.fig {
+                b { (lux_h(w.used_lux_hours)) }
+                @if let Some(budget) = w.budget_lux_hours { " of " (lux_h(budget)) } " lux·h used"
+                @if let Some(f) = fraction { span.dim { " (" (percent(f)) ")" } }
             }
+            @if let Some(f) = fraction {
+                div class=(class) { div style={ "width:" (percent(f.min(1.0))) } {} }
+            }
+            @if let Some(left) = w.left_lux_hours { div.left { (lux_h(left)) " lux·h left" } }
         }
     }
 }
@@ -259,7 +261,7 @@ fn projectors(s: &Snapshot) -> Markup {
                                 @if p.errors.is_empty() { span.dim { "none" } }
                                 @for e in &p.errors { div.bad { (e) } }
                             }
-                            td { @if let Some(t) = &p.last_poll { (t) } @else { span.dim { "never" } } }
+                            td.t { @if let Some(t) = &p.last_poll { (t) } @else { span.dim { "never" } } }
                         }
                     }
                 }
@@ -270,7 +272,7 @@ fn projectors(s: &Snapshot) -> Markup {
 
 fn showings(s: &Snapshot) -> Markup {
     html! {
-        section {
+        section.wide {
             h2 { "Last showings" }
             @if s.showings.is_empty() {
                 p.empty { "None yet." }
@@ -278,7 +280,7 @@ fn showings(s: &Snapshot) -> Markup {
                 table {
                     tr { th { "start" } th { "end" } th { "scenes" } th { "ended by" } }
                     @for w in &s.showings {
-                        tr { td { (w.start) } td { (w.end) } td { (w.scenes) } td { (w.ended_by) } }
+                        tr { td.t { (w.start) } td.t { (w.end) } td { (w.scenes) } td { (w.ended_by) } }
                     }
                 }
             }
@@ -288,13 +290,13 @@ fn showings(s: &Snapshot) -> Markup {
 
 fn warnings(s: &Snapshot) -> Markup {
     html! {
-        section {
+        section.wide {
             h2 { "Budget warnings" }
             @if s.warnings.is_empty() {
                 p.empty { "None." }
             } @else {
                 table {
-                    @for w in &s.warnings { tr { td.dim { (w.at) } td { (w.text) } } }
+                    @for w in &s.warnings { tr { td.t.dim { (w.at) } td { (w.text) } } }
                 }
             }
         }
@@ -310,19 +312,27 @@ fn events(s: &Snapshot) -> Markup {
             } @else {
                 table {
                     tr { th { "time" } th { "kind" } th { "detail" } }
-                    @for e in &s.events { tr { td.dim { (e.at) } td { (e.kind) } td { (e.detail) } } }
+                    @for e in &s.events { tr { td.t.dim { (e.at) } td { (e.kind) } td { (e.detail) } } }
                 }
             }
         }
     }
 }
 
+/// Lux·hours for reading: one decimal below 100, else whole, in groups of three digits.
 fn lux_h(v: f64) -> String {
-    if v.abs() >= 100.0 { format!("{v:.0}") } else { format!("{v:.1}") }
-}
-
-fn opt_lux_h(v: Option<f64>) -> String {
-    v.map_or_else(|| "—".to_string(), lux_h)
+    if v.is_nan() || v.abs() < 100.0 {
+        return format!("{v:.1}");
+    }
+    let digits = format!("{:.0}", v.abs());
+    let mut out = String::from(if v < 0.0 { "-" } else { "" });
+    for (i, d) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i) % 3 == 0 {
+            out.push('\u{202f}'); // narrow no-break space
+        }
+        out.push(d);
+    }
+    out
 }
 
 fn percent(f: f64) -> String {
@@ -442,10 +452,22 @@ mod tests {
     #[test]
     fn budget_bar_turns_amber_then_red() {
         let w = |used| Window { used_lux_hours: used, left_lux_hours: None, budget_lux_hours: Some(100.0) };
-        assert!(window_row("d", &w(10.0)).into_string().contains(r#"class="bar""#));
-        assert!(window_row("d", &w(85.0)).into_string().contains("bar warn"));
-        assert!(window_row("d", &w(130.0)).into_string().contains("bar over"));
-        assert!(window_row("d", &w(130.0)).into_string().contains("width:100%"));
+        assert!(window("d", &w(10.0)).into_string().contains(r#"class="bar""#));
+        assert!(window("d", &w(85.0)).into_string().contains("bar warn"));
+        assert!(window("d", &w(130.0)).into_string().contains("bar over"));
+        assert!(window("d", &w(130.0)).into_string().contains("width:100%"));
+        let none = Window { used_lux_hours: 3.0, left_lux_hours: None, budget_lux_hours: None };
+        assert!(!window("d", &none).into_string().contains("bar"), "no budget, no bar");
+    }
+
+    #[test]
+    fn lux_hours_are_grouped() {
+        assert_eq!(lux_h(12.25), "12.2");
+        assert_eq!(lux_h(412.5), "412");
+        assert_eq!(lux_h(121_034.0), "121\u{202f}034");
+        assert_eq!(lux_h(1_000_000.0), "1\u{202f}000\u{202f}000");
+        assert_eq!(lux_h(-1500.0), "-1\u{202f}500");
+        assert_eq!(lux_h(f64::NAN), "NaN");
     }
 
     #[test]
