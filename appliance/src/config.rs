@@ -48,6 +48,9 @@ pub struct Config {
     pub feedback: FeedbackConfig,
     #[serde(default)]
     pub alerts: AlertsConfig,
+    /// The read-only remote status page (`[status]`; off by default).
+    #[serde(default)]
+    pub status: crate::status::StatusConfig,
 }
 
 /// What the visitor sees on the button box (see `feedback`); the serial box needs no key.
@@ -456,6 +459,7 @@ impl Config {
                 "1..=8 ascending fractions, each 0 < x <= 1",
             ));
         }
+        self.status.check(path)?;
         Ok(())
     }
 }

@@ -17,4 +17,5 @@ pub mod output;
 pub mod player;
 pub mod runtime;
 pub mod show;
+pub mod status;
 pub mod verify;
