@@ -44,6 +44,9 @@ pub struct Config {
     pub output: OutputConfig,
     #[serde(default)]
     pub inputs: InputsConfig,
+    /// Projector control over the network (PJLink); absent: not controlled.
+    #[serde(default)]
+    pub pjlink: Option<crate::pjlink::PjlinkConfig>,
 }
 
 /// What the projectors do between showings.
@@ -376,6 +379,9 @@ impl Config {
             && e.keys.is_empty()
         {
             return Err(range("inputs.evdev.keys", "[]".into(), "at least one key name"));
+        }
+        if let Some(p) = &self.pjlink {
+            p.check().map_err(|e| range(e.key, e.value, e.expected))?;
         }
         Ok(())
     }

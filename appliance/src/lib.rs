@@ -8,6 +8,7 @@ pub mod loader;
 pub mod memory;
 pub mod notify;
 pub mod output;
+pub mod pjlink;
 pub mod player;
 pub mod runtime;
 pub mod show;
