@@ -11,7 +11,7 @@ use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
-use super::client::{Info, PjlinkError, Projector};
+use super::client::{Info, PjlinkError, Projector, Session};
 use super::protocol::{Class, ErrCode, ErrorStatus, Lamp, PowerState};
 use crate::clock::TimeSource;
 
@@ -228,14 +228,14 @@ impl PjlinkControl {
     /// Asks every projector; never blocks (the latest wish wins).
     pub fn want(&self, want: Want) {
         for h in &self.handles {
-            h.desired.send_modify(|d| d.apply(want));
+            ask(&h.desired, want);
         }
     }
 
     /// Asks one projector (index in configuration order); out of range is ignored.
     pub fn want_one(&self, index: usize, want: Want) {
         if let Some(h) = self.handles.get(index) {
-            h.desired.send_modify(|d| d.apply(want));
+            ask(&h.desired, want);
         }
     }
 
@@ -290,6 +290,16 @@ impl PjlinkControl {
         };
         tokio::time::timeout(limit, all).await.unwrap_or(false)
     }
+}
+
+/// Records a wish; wakes the projector's task only when it changes something (the event
+/// loop may repeat `Mute(true)` on every fault).
+fn ask(desired: &watch::Sender<Desired>, want: Want) {
+    desired.send_if_modified(|d| {
+        let before = *d;
+        d.apply(want);
+        *d != before
+    });
 }
 
 struct Worker {
@@ -396,6 +406,18 @@ impl Worker {
         }
     }
 
+    /// Sets the AV mute as wanted if it differs; projectors take it only while on.
+    async fn apply_mute(&mut self, session: &mut Session, desired: Desired) -> Result<(), PjlinkError> {
+        if let Some(mute) = desired.mute
+            && self.status.muted != Some(mute)
+            && self.status.power == Some(PowerState::On)
+        {
+            session.set_av_mute(mute).await?;
+            self.status.muted = Some(session.av_mute().await?.video);
+        }
+        Ok(())
+    }
+
     /// Returns whether something is still in progress (poll again soon).
     async fn exchange(&mut self, desired: Desired) -> Result<bool, PjlinkError> {
         let mut session = self.projector.connect().await?;
@@ -407,19 +429,17 @@ impl Worker {
         self.status.lamps = poll.lamps;
         let mut busy = matches!(poll.power, PowerState::Warming | PowerState::Cooling);
         if self.status.info.is_none() {
-            let info = session.info().await?;
+            // Read once. A refusing projector (ERR2, ERR4) is still controlled, unnamed.
+            let info = match session.info().await {
+                Err(PjlinkError::Refused { .. }) => Info::default(),
+                other => other?,
+            };
             self.status.class = info.class;
             self.status.info = Some(info);
         }
 
-        // The mute first: it is the dark layer, and it can only be set while on.
-        if let Some(mute) = desired.mute
-            && poll.mute.video != mute
-            && poll.power == PowerState::On
-        {
-            session.set_av_mute(mute).await?;
-            self.status.muted = Some(session.av_mute().await?.video);
-        }
+        // The mute first: it is the dark layer. Again after a power change (below).
+        self.apply_mute(&mut session, desired).await?;
         match (desired.power, poll.power) {
             // Never power on while cooling down: wait until it is off (busy above).
             (Some(PowerWant::On), PowerState::Off) => {
@@ -437,6 +457,7 @@ impl Worker {
             }
             _ => {}
         }
+        self.apply_mute(&mut session, desired).await?;
         // Wanted on and now on but the mute not yet applied: come back soon to apply it.
         if desired.mute.is_some_and(|m| self.status.muted != Some(m))
             && matches!(self.status.power, Some(PowerState::On | PowerState::Warming))

@@ -338,18 +338,18 @@ pub fn parse_error_status(body: &str) -> Result<ErrorStatus, ProtocolError> {
 /// `LAMP ?`: pairs `hours on` for 1..=8 lamps (`1234 1 567 0`).
 pub fn parse_lamps(body: &str) -> Result<Vec<Lamp>, ProtocolError> {
     let words: Vec<&str> = body.split(' ').collect();
-    if words.len() % 2 != 0 || words.is_empty() || words.len() > 16 {
+    if !words.len().is_multiple_of(2) || words.is_empty() || words.len() > 16 {
         return Err(garbage("lamp answer not 1..8 pairs", body.as_bytes()));
     }
     words
         .chunks_exact(2)
         .map(|pair| {
-            let hours = pair[0];
+            let &[hours, on] = pair else { return Err(garbage("lamp answer not pairs", body.as_bytes())) };
             if hours.is_empty() || hours.len() > 9 || !hours.bytes().all(|b| b.is_ascii_digit()) {
                 return Err(garbage("lamp hours not a number", body.as_bytes()));
             }
             let hours = hours.parse().map_err(|_| garbage("lamp hours not a number", body.as_bytes()))?;
-            let on = match pair[1] {
+            let on = match on {
                 "0" => false,
                 "1" => true,
                 _ => return Err(garbage("lamp on/off not 0/1", body.as_bytes())),
