@@ -51,6 +51,9 @@ pub struct Config {
     /// The read-only remote status page (`[status]`; off by default).
     #[serde(default)]
     pub status: crate::status::StatusConfig,
+    /// Projector control over the network (PJLink); absent: not controlled.
+    #[serde(default)]
+    pub pjlink: Option<crate::pjlink::PjlinkConfig>,
 }
 
 /// What the visitor sees on the button box (see `feedback`); the serial box needs no key.
@@ -460,6 +463,9 @@ impl Config {
             ));
         }
         self.status.check(path)?;
+        if let Some(p) = &self.pjlink {
+            p.check().map_err(|e| range(e.key, e.value, e.expected))?;
+        }
         Ok(())
     }
 }

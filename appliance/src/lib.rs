@@ -14,6 +14,7 @@ pub mod logging;
 pub mod memory;
 pub mod notify;
 pub mod output;
+pub mod pjlink;
 pub mod player;
 pub mod runtime;
 pub mod show;
