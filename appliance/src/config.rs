@@ -68,6 +68,12 @@ pub struct Config {
     pub feedback: FeedbackConfig,
     #[serde(default)]
     pub alerts: AlertsConfig,
+    /// The read-only remote status page (`[status]`; off by default).
+    #[serde(default)]
+    pub status: crate::status::StatusConfig,
+    /// Projector control over the network (PJLink); absent: not controlled.
+    #[serde(default)]
+    pub pjlink: Option<crate::pjlink::PjlinkConfig>,
 }
 
 /// What the visitor sees on the button box (see `feedback`); the serial box needs no key.
@@ -523,6 +529,10 @@ impl Config {
                 format!("{t:?}"),
                 "1..=8 ascending fractions, each 0 < x <= 1",
             ));
+        }
+        self.status.check(path)?;
+        if let Some(p) = &self.pjlink {
+            p.check().map_err(|e| range(e.key, e.value, e.expected))?;
         }
         Ok(())
     }

@@ -141,6 +141,9 @@ pub struct PlayerSettings {
     pub light_off_latency_ms: u64,
 }
 
+/// The dark state's reason after an operator's stop (not an alert: someone chose it).
+pub const STOPPED: &str = "stopped by operator";
+
 /// How often an exhausted budget is looked at again.
 pub const EXHAUSTED_RETRY_MS: u64 = 60_000;
 
@@ -353,9 +356,7 @@ impl Player {
             Event::Release => {}
             Event::Tick => {}
             Event::Identify { projector, ms } => self.identify(now, projector, ms, acct, &mut out),
-            Event::Stop => {
-                self.go_dark(now, &mut out, State::Dark { reason: "stopped by operator".into() }, "stop")
-            }
+            Event::Stop => self.go_dark(now, &mut out, State::Dark { reason: STOPPED.into() }, "stop"),
             Event::Fault(reason) => {
                 tracing::error!(%reason, "fault: outputs dark");
                 self.go_dark(now, &mut out, State::Fault { reason }, "fault")

@@ -13,6 +13,8 @@ use thiserror::Error;
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::{mpsc, watch};
 
+use crate::alert_command::{self, AlertCommand};
+use crate::alerts::{AlertSettings, Alerts, BudgetUse, Facts};
 use crate::clock::{Clock, LedgerClock, SystemTime, TimeSource, monotonic_us};
 use crate::config::{Config, LEDGER_FILE, OutputConfig};
 use crate::feedback::{self, Availability};
@@ -22,12 +24,14 @@ use crate::loader::{self, FrameStore, LoadError, Prepared};
 use crate::notify::Notifier;
 use crate::output::headless::HeadlessOutput;
 use crate::output::{FrameRef, Output, OutputError};
-use crate::player::{Command, Event, Look, Player, PlayerSettings, State};
+use crate::player::{Command, Event, Look, Player, PlayerSettings, STOPPED, State};
 use crate::show::{Show, mix_linear};
 
 /// After a ledger fault (a lock held too long, an I/O error), light is tried again this
 /// long later: a transient fault must not leave an unattended stage dark for good.
 pub const LEDGER_RETRY_MS: u64 = 30_000;
+/// How often alerts are looked at (ms), besides at every change of state.
+const HOUSEKEEPING_MS: u64 = 30_000;
 /// A wall-clock step larger than this (ms) is logged as an event.
 const CLOCK_STEP_REPORT_MS: i64 = 2_000;
 
@@ -133,6 +137,11 @@ pub struct App {
     hours_change_ms: Option<i64>,
     /// What the visitor's button box shows (serial `LED` lines, the GPIO LED).
     availability: watch::Sender<Availability>,
+    /// Operator alerts (budgets, expiry, projectors, faults) and the command that hears them.
+    alerts: Alerts,
+    alert_command: Option<AlertCommand>,
+    /// When the periodic checks (alerts) run next (monotonic ms).
+    next_housekeeping_ms: u64,
 }
 
 impl std::fmt::Debug for App {
@@ -453,7 +462,44 @@ impl App {
         if s != self.last_status {
             self.notifier.status(&s);
             self.last_status = s;
+            // A new state may raise or clear an alert: look now, not at the next round.
+            self.next_housekeeping_ms = 0;
         }
+    }
+
+    /// The periodic checks: alerts from the ledger's budgets, the bundle's expiry, the
+    /// player's faults and the clock. Also run at once when the player's state changes.
+    fn housekeeping(&mut self) {
+        let now = self.now();
+        self.next_housekeeping_ms = now.mono_ms + HOUSEKEEPING_MS;
+        let (mut ledger_fault, mut fault, mut dark) = (None, None, None);
+        match self.player.state() {
+            State::Fault { reason } if reason.starts_with("ledger:") => ledger_fault = Some(reason.clone()),
+            State::Fault { reason } => fault = Some(reason.clone()),
+            State::Dark { reason } if reason != STOPPED => dark = Some(reason.clone()),
+            _ => {}
+        }
+        let budgets = match self.ledger.status(now.unix_ms) {
+            Ok(s) => BudgetUse::from_status(&s),
+            Err(e) => {
+                ledger_fault.get_or_insert_with(|| format!("ledger: {e}"));
+                Vec::new()
+            }
+        };
+        let facts = Facts {
+            budgets,
+            bundle_expires_ms: self.player.show().and_then(|s| s.expires_unix_ms),
+            projectors: Vec::new(),
+            ledger_fault,
+            fault,
+            dark,
+            clock_skew_ms: self.clock.wall_skew_ms(),
+        };
+        let changes = self.alerts.observe(&facts, now.unix_ms);
+        for a in &changes.raised {
+            let _ = self.ledger.log_event(now.unix_ms, "alert", &a.message);
+        }
+        alert_command::dispatch(&changes, self.alert_command.as_ref());
     }
 
     /// Reports a wall-clock step (ledger time does not follow it; see `clock`).
@@ -556,8 +602,9 @@ impl App {
             .filter(|_| !matches!(self.player.state(), State::Dark { .. }))
             .map(|e| (e - now.unix_ms).max(0) as u64);
         let retry = self.ledger_retry_ms.map(|r| r.saturating_sub(now.mono_ms));
+        let housekeeping = Some(self.next_housekeeping_ms.saturating_sub(now.mono_ms));
         let hours = self.hours_change_ms.map(|t| (t - now.unix_ms).max(0) as u64);
-        [tick, expiry, retry, hours].into_iter().flatten().min()
+        [tick, expiry, retry, housekeeping, hours].into_iter().flatten().min()
     }
 
     /// Opening hours: tells the player when they begin or end (in ledger time, which no
@@ -716,6 +763,7 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
     let watchdog = notifier.watchdog_interval();
     let (prepared_tx, mut prepared_rx) = mpsc::channel(4);
     let reported_skew_ms = clock.wall_skew_ms();
+    let config_alerts = config.alerts.clone();
     let mut app = App {
         clock: Box::new(clock),
         ledger,
@@ -733,6 +781,9 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         reported_skew_ms,
         hours_change_ms: None,
         availability: availability_tx,
+        alerts: Alerts::new(AlertSettings::from(&config_alerts)),
+        alert_command: AlertCommand::from_config(&config_alerts),
+        next_housekeeping_ms: 0,
     };
     // Closed before the bundle loads: outside opening hours the first light never comes on.
     app.watch_hours();
@@ -771,6 +822,9 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
             app.activate_parked();
         }
         app.watch_clock();
+        if app.now().mono_ms >= app.next_housekeeping_ms {
+            app.housekeeping();
+        }
         if let Some(w) = watchdog
             && last_ping.elapsed() >= w
         {
