@@ -1,6 +1,7 @@
 //! The remote status page: a read-only HTTP view of the appliance (HTML for people,
 //! `/status.json`, Prometheus `/metrics`) rendered from a [`Snapshot`] the event loop publishes.
 
+mod fill;
 mod html;
 mod metrics;
 mod server;
@@ -11,6 +12,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
+pub use self::fill::{Parts, snapshot};
 pub use self::html::{REFRESH_S, render as render_html};
 pub use self::metrics::{CONTENT_TYPE as METRICS_CONTENT_TYPE, render as render_metrics};
 pub use self::server::{Limits, StatusError, bind, respond, serve};
