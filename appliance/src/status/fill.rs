@@ -29,6 +29,16 @@ pub struct Parts<'a> {
     pub alerts: &'a [alerts::Alert],
 }
 
+/// The opening hours' answer (`hours::Hours::at`) as the snapshot shows it; always open (no
+/// `[hours]`): neither `next_open` nor `next_close`.
+pub fn opening(o: &crate::hours::Opening, local: &dyn Fn(i64) -> String) -> Opening {
+    let next = o.next_change_ms.map(|t| Moment { local: local(t), unix_ms: t });
+    match o.open {
+        true => Opening { open: true, next_open: None, next_close: next },
+        false => Opening { open: false, next_open: next, next_close: None },
+    }
+}
+
 /// Arranges `p` into a snapshot.
 pub fn snapshot(p: &Parts<'_>) -> Snapshot {
     let local = p.local;
@@ -43,6 +53,7 @@ pub fn snapshot(p: &Parts<'_>) -> Snapshot {
         State::Exhausted { reason, .. } => (StateKind::BudgetExhausted, Some(reason.clone())),
         State::Fault { reason } => (StateKind::Fault, Some(reason.clone())),
         State::Dark { reason } => (StateKind::Dark, Some(reason.clone())),
+        State::Closed { reason } => (StateKind::Closed, Some(reason.clone())),
     };
     // Outside opening hours a dark stage is closed, not out of order.
     let (kind, detail) = match (kind, p.opening.open) {
@@ -175,5 +186,29 @@ fn projector(s: &ProjectorStatus, local: &dyn Fn(i64) -> String) -> Projector {
         lamp_hours: s.lamp_hours.map(u64::from),
         errors,
         last_poll: s.last_poll_unix_ms.map(local),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn opening_puts_the_next_change_where_it_belongs() {
+        let local = |t: i64| format!("t{t}");
+        let hours = |open, next| crate::hours::Opening { open, next_change_ms: next, reason: String::new() };
+        let moment = Some(Moment { local: "t5".into(), unix_ms: 5 });
+        assert_eq!(
+            opening(&hours(false, Some(5)), &local),
+            Opening { open: false, next_open: moment.clone(), next_close: None }
+        );
+        assert_eq!(
+            opening(&hours(true, Some(5)), &local),
+            Opening { open: true, next_open: None, next_close: moment }
+        );
+        assert_eq!(
+            opening(&hours(true, None), &local),
+            Opening { open: true, next_open: None, next_close: None }
+        );
     }
 }

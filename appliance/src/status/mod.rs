@@ -12,7 +12,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-pub use self::fill::{Parts, snapshot};
+pub use self::fill::{Parts, opening, snapshot};
 pub use self::html::{REFRESH_S, render as render_html};
 pub use self::metrics::{CONTENT_TYPE as METRICS_CONTENT_TYPE, render as render_metrics};
 pub use self::server::{Limits, StatusError, bind, respond, serve};
