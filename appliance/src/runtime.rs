@@ -14,24 +14,28 @@ use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::{mpsc, watch};
 
 use crate::alert_command::{self, AlertCommand};
-use crate::alerts::{AlertSettings, Alerts, BudgetUse, Facts};
+use crate::alerts::{AlertSettings, Alerts, BudgetUse, Facts, ProjectorProblem};
 use crate::clock::{Clock, LedgerClock, SystemTime, TimeSource, monotonic_us};
 use crate::config::{Config, LEDGER_FILE, OutputConfig};
 use crate::feedback::{self, Availability};
 use crate::input::{self, Control, InputEvent};
+use crate::ledger::LedgerStatus;
 use crate::ledger::{Ledger, LedgerError};
 use crate::loader::{self, FrameStore, LoadError, Prepared};
 use crate::notify::Notifier;
 use crate::output::headless::HeadlessOutput;
 use crate::output::{FrameRef, Output, OutputError};
+use crate::pjlink::{PjlinkControl, ProjectorStatus, Want};
 use crate::player::{Command, Event, Look, Player, PlayerSettings, STOPPED, State};
 use crate::show::{Show, mix_linear};
+use crate::status::{self, Snapshot};
 
 /// After a ledger fault (a lock held too long, an I/O error), light is tried again this
 /// long later: a transient fault must not leave an unattended stage dark for good.
 pub const LEDGER_RETRY_MS: u64 = 30_000;
-/// How often alerts are looked at (ms), besides at every change of state.
-const HOUSEKEEPING_MS: u64 = 30_000;
+/// How often alerts, the projectors and the status page are looked at (ms), besides at every
+/// change of state: the page reloads every 10 s.
+const HOUSEKEEPING_MS: u64 = 5_000;
 /// A wall-clock step larger than this (ms) is logged as an event.
 const CLOCK_STEP_REPORT_MS: i64 = 2_000;
 
@@ -140,8 +144,14 @@ pub struct App {
     /// Operator alerts (budgets, expiry, projectors, faults) and the command that hears them.
     alerts: Alerts,
     alert_command: Option<AlertCommand>,
-    /// When the periodic checks (alerts) run next (monotonic ms).
+    /// When the periodic checks (alerts, projectors, status page) run next (monotonic ms).
     next_housekeeping_ms: u64,
+    /// The projectors' own control (PJLink), if configured.
+    pjlink: Option<PjlinkControl>,
+    /// The status page's latest snapshot (read by the HTTP server, if enabled).
+    snapshot: watch::Sender<Arc<Snapshot>>,
+    /// Monotonic ms at start (the status page's uptime).
+    started_mono_ms: u64,
 }
 
 impl std::fmt::Debug for App {
@@ -479,17 +489,19 @@ impl App {
             State::Dark { reason } if reason != STOPPED => dark = Some(reason.clone()),
             _ => {}
         }
-        let budgets = match self.ledger.status(now.unix_ms) {
-            Ok(s) => BudgetUse::from_status(&s),
+        let ledger_status = self.ledger.status(now.unix_ms);
+        let budgets = match &ledger_status {
+            Ok(s) => BudgetUse::from_status(s),
             Err(e) => {
                 ledger_fault.get_or_insert_with(|| format!("ledger: {e}"));
                 Vec::new()
             }
         };
+        let projectors = self.pjlink.as_ref().map(PjlinkControl::statuses).unwrap_or_default();
         let facts = Facts {
             budgets,
             bundle_expires_ms: self.player.show().and_then(|s| s.expires_unix_ms),
-            projectors: Vec::new(),
+            projectors: projectors.iter().filter_map(projector_problem).collect(),
             ledger_fault,
             fault,
             dark,
@@ -500,6 +512,50 @@ impl App {
             let _ = self.ledger.log_event(now.unix_ms, "alert", &a.message);
         }
         alert_command::dispatch(&changes, self.alert_command.as_ref());
+        self.drive_projectors();
+        self.publish_snapshot(ledger_status.as_ref().map_err(|e| e.to_string()), &projectors);
+    }
+
+    /// What the projectors themselves should do (PJLink): powered on from `power_on_lead_s`
+    /// before opening until closing, in standby otherwise; picture muted whenever the stage
+    /// is dark for a reason (a second dark layer under a fault, a stop, closed hours, an
+    /// exhausted budget, no bundle).
+    fn drive_projectors(&self) {
+        let Some(pj) = &self.pjlink else { return };
+        let now = self.now().unix_ms;
+        let lead_ms = self.config.pjlink.as_ref().map_or(0, |c| c.power_on_lead_s * 1000) as i64;
+        let hours = self.config.opening_hours();
+        let wanted_on = hours.at(now).open || hours.at(now + lead_ms).open;
+        pj.want(if wanted_on { Want::On } else { Want::Standby });
+        // Not between showings (a dark idle look): unmuting takes a network round trip, and
+        // a visitor's press must light the object at once.
+        let dark_for_a_reason = matches!(
+            self.player.state(),
+            State::Fault { .. } | State::Dark { .. } | State::Closed { .. } | State::Exhausted { .. }
+        );
+        pj.want(Want::Mute(dark_for_a_reason));
+    }
+
+    /// Publishes what the status page shows now.
+    fn publish_snapshot(&self, ledger: Result<&LedgerStatus, String>, projectors: &[ProjectorStatus]) {
+        let now = self.now();
+        let zone = self.config.local_zone();
+        let local = |t: i64| zone.local_time(t);
+        let alerts = self.alerts.active();
+        let parts = status::Parts {
+            version: env!("CARGO_PKG_VERSION"),
+            uptime_s: now.mono_ms.saturating_sub(self.started_mono_ms) / 1000,
+            now_ms: now.unix_ms,
+            zone: &zone.name(),
+            local: &local,
+            state: self.player.state(),
+            opening: status::opening(&self.config.opening_hours().at(now.unix_ms), &local),
+            ledger,
+            show: self.player.show().map(|s| s.as_ref()),
+            projectors,
+            alerts: &alerts,
+        };
+        self.snapshot.send_replace(Arc::new(status::snapshot(&parts)));
     }
 
     /// Reports a wall-clock step (ledger time does not follow it; see `clock`).
@@ -664,6 +720,17 @@ impl App {
     }
 }
 
+/// What an operator must hear about a projector: lost after trying, or reporting a fault.
+/// Before the first poll a projector is not yet known, which is no problem.
+fn projector_problem(s: &ProjectorStatus) -> Option<ProjectorProblem> {
+    let problem = match (&s.last_error, s.reachable, s.failures) {
+        (Some(e), _, _) => e.clone(),
+        (None, false, f) if f > 0 => format!("unreachable at {}", s.address),
+        _ => return None,
+    };
+    Some(ProjectorProblem { name: s.name.clone(), problem })
+}
+
 /// A look's frames: a scene's from the store, or black from one shared buffer of zeros.
 enum LookFrames {
     Scene(Arc<Vec<Vec<u8>>>),
@@ -704,7 +771,7 @@ pub async fn run(config: Config) -> Result<(), RunError> {
 }
 
 /// Runs the appliance with `time` as its clocks (tests step the wall clock through this).
-pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Result<(), RunError> {
+pub async fn run_with<S: TimeSource + Clone + 'static>(config: Config, time: S) -> Result<(), RunError> {
     // A file-size limit (or quota) must give write errors, not kill the process with the
     // projectors lit: handle SIGXFSZ (25 on Linux) instead of taking its default action.
     let _xfsz = signal(SignalKind::from_raw(25))?;
@@ -733,7 +800,7 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
     ledger.integrity_check()?;
     ledger.set_busy_timeout(config.ledger.busy_timeout_ms)?;
     let wall_ms = time.wall_ms();
-    let clock = LedgerClock::new(time, ledger.high_water_ms()?);
+    let clock = LedgerClock::new(time.clone(), ledger.high_water_ms()?);
     let (anchor_ms, anchor_boot_ms) = clock.anchor();
     ledger.record_run(anchor_ms, anchor_boot_ms, wall_ms)?;
     if anchor_ms > wall_ms + CLOCK_STEP_REPORT_MS {
@@ -764,6 +831,34 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
     let (prepared_tx, mut prepared_rx) = mpsc::channel(4);
     let reported_skew_ms = clock.wall_skew_ms();
     let config_alerts = config.alerts.clone();
+    let pjlink = config
+        .pjlink
+        .as_ref()
+        .map(|c| PjlinkControl::spawn(&c.specs(), c.timing(), Arc::new(time.clone()) as Arc<dyn TimeSource>));
+    let started = clock.now();
+    let zone = config.local_zone().clone();
+    let (snapshot, snapshot_rx) = watch::channel(Arc::new(status::Snapshot::starting(
+        env!("CARGO_PKG_VERSION"),
+        status::Clock {
+            local: zone.local_time(started.unix_ms),
+            zone: zone.name(),
+            unix_ms: started.unix_ms,
+        },
+    )));
+    // A status page that cannot listen (a port taken) is logged; the stage plays on.
+    let status_server = match config.status.enabled {
+        true => match status::bind(config.status.listen).await {
+            Ok(listener) => {
+                tracing::info!(listen = %config.status.listen, "status page listening");
+                Some(tokio::spawn(status::serve(listener, snapshot_rx, status::Limits::default())))
+            }
+            Err(e) => {
+                tracing::error!("status page: {e}");
+                None
+            }
+        },
+        false => None,
+    };
     let mut app = App {
         clock: Box::new(clock),
         ledger,
@@ -784,6 +879,9 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
         alerts: Alerts::new(AlertSettings::from(&config_alerts)),
         alert_command: AlertCommand::from_config(&config_alerts),
         next_housekeeping_ms: 0,
+        pjlink,
+        snapshot,
+        started_mono_ms: started.mono_ms,
     };
     // Closed before the bundle loads: outside opening hours the first light never comes on.
     app.watch_hours();
@@ -831,6 +929,17 @@ pub async fn run_with<S: TimeSource + 'static>(config: Config, time: S) -> Resul
             app.notifier.ping();
             last_ping = std::time::Instant::now();
         }
+    }
+    // The projectors' own mute as the second dark layer while the service is down; a
+    // restart unmutes them once light is wanted again.
+    if let Some(pj) = &app.pjlink {
+        pj.want(Want::Mute(true));
+        if !pj.wait_settled(Duration::from_secs(2)).await {
+            tracing::warn!("not every projector confirmed its AV mute before exit");
+        }
+    }
+    if let Some(s) = status_server {
+        s.abort();
     }
     tracing::info!("appliance stopped; outputs dark");
     Ok(())

@@ -28,6 +28,10 @@ pub struct PjlinkConfig {
     /// Longest wait between retries of an unreachable projector (s, 1..=3600; the wait
     /// doubles from `busy_poll_ms` up to it). Default 60.
     pub retry_max_s: u64,
+    /// Power the projectors on this many seconds before opening time, so they have warmed
+    /// up when the doors open (0..=3600). Default 120. Outside opening hours (and this lead)
+    /// they are put in standby.
+    pub power_on_lead_s: u64,
 }
 
 impl Default for PjlinkConfig {
@@ -40,6 +44,7 @@ impl Default for PjlinkConfig {
             warmup_s_max: 120,
             cooldown_s_max: 180,
             retry_max_s: 60,
+            power_on_lead_s: 120,
         }
     }
 }
@@ -83,13 +88,14 @@ impl PjlinkConfig {
                 "1..=8 projectors",
             );
         }
-        let numbers: [(&'static str, u64, u64, u64, &'static str); 6] = [
+        let numbers: [(&'static str, u64, u64, u64, &'static str); 7] = [
             ("pjlink.poll_s", self.poll_s, 1, 3600, "1..=3600"),
             ("pjlink.busy_poll_ms", self.busy_poll_ms, 100, 60_000, "100..=60000"),
             ("pjlink.timeout_ms", self.timeout_ms, 100, 30_000, "100..=30000"),
             ("pjlink.warmup_s_max", self.warmup_s_max, 1, 1800, "1..=1800"),
             ("pjlink.cooldown_s_max", self.cooldown_s_max, 1, 1800, "1..=1800"),
             ("pjlink.retry_max_s", self.retry_max_s, 1, 3600, "1..=3600"),
+            ("pjlink.power_on_lead_s", self.power_on_lead_s, 0, 3600, "0..=3600"),
         ];
         for (key, value, lo, hi, expected) in numbers {
             if !(lo..=hi).contains(&value) {
