@@ -606,36 +606,29 @@ impl Ledger {
 
     /// Every exposure row of `object`, in order: for audits and tests.
     pub fn exposure_rows(&self, object: &str) -> Result<Vec<ExposureRow>, LedgerError> {
-        self.conn
-            .prepare(
-                "SELECT kind, label, lux, start_ms, end_ms, committed FROM exposure WHERE object = ?1 ORDER BY id",
-            )
-            .and_then(|mut s| {
-                s.query_map([object], |r| {
-                    Ok(ExposureRow {
-                        kind: r.get(0)?,
-                        label: r.get(1)?,
-                        lux: r.get(2)?,
-                        start_ms: r.get(3)?,
-                        end_ms: r.get(4)?,
-                        committed: r.get::<_, i64>(5)? == 1,
-                    })
-                })?
-                .collect()
-            })
-            .map_err(self.sql())
+        let rows = self.exposure_where("object = ?1 ORDER BY id", params![object])?;
+        Ok(rows.into_iter().map(|(_, r)| r).collect())
     }
 
     /// Every exposure row of every object overlapping `[from_ms, to_ms)`, in order of start:
     /// the light history `ledger export` writes.
     pub fn history(&self, from_ms: i64, to_ms: i64) -> Result<Vec<(String, ExposureRow)>, LedgerError> {
+        self.exposure_where("end_ms > ?1 AND start_ms < ?2 ORDER BY start_ms, id", params![from_ms, to_ms])
+    }
+
+    /// Exposure rows (with their object) selected by an SQL condition of this module's own.
+    fn exposure_where(
+        &self,
+        condition: &str,
+        args: &[&dyn rusqlite::ToSql],
+    ) -> Result<Vec<(String, ExposureRow)>, LedgerError> {
+        let sql = format!(
+            "SELECT object, kind, label, lux, start_ms, end_ms, committed FROM exposure WHERE {condition}"
+        );
         self.conn
-            .prepare(
-                "SELECT object, kind, label, lux, start_ms, end_ms, committed FROM exposure
-                 WHERE end_ms > ?1 AND start_ms < ?2 ORDER BY start_ms, id",
-            )
+            .prepare(&sql)
             .and_then(|mut s| {
-                s.query_map([from_ms, to_ms], |r| {
+                s.query_map(args, |r| {
                     Ok((
                         r.get(0)?,
                         ExposureRow {
