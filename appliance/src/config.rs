@@ -42,6 +42,10 @@ pub struct Config {
     /// of the first bundle it accepts (recorded in the ledger); set it to move to another.
     #[serde(default)]
     pub object_id: Option<String>,
+    /// This stage's name for people: the status page's title and the alerts' text, e.g.
+    /// "Gallery 3, retable" (1..=64 printable characters). Default: none.
+    #[serde(default)]
+    pub name: Option<String>,
     /// The stage's IANA time zone, e.g. "Europe/Amsterdam": local days of the daily budget
     /// and the opening hours follow it, daylight saving included. Default "UTC".
     #[serde(default)]
@@ -452,6 +456,11 @@ impl Config {
             && (o.is_empty() || o.len() > 200 || o.chars().any(char::is_control))
         {
             return Err(range("object_id", format!("{o:?}"), "1..=200 printable characters"));
+        }
+        if let Some(n) = &self.name
+            && (n.trim().is_empty() || n.chars().count() > 64 || n.chars().any(char::is_control))
+        {
+            return Err(range("name", format!("{n:?}"), "1..=64 printable characters"));
         }
         let lc = &self.light_check;
         if !(lc.max_throw_m.is_finite() && lc.max_throw_m > 0.0 && lc.max_throw_m <= 1000.0) {

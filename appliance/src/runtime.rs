@@ -543,6 +543,7 @@ impl App {
         let local = |t: i64| zone.local_time(t);
         let alerts = self.alerts.active();
         let parts = status::Parts {
+            name: self.config.name.as_deref(),
             version: env!("CARGO_PKG_VERSION"),
             uptime_s: now.mono_ms.saturating_sub(self.started_mono_ms) / 1000,
             now_ms: now.unix_ms,

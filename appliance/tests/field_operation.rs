@@ -45,7 +45,7 @@ impl Stage {
             ));
         }
         let config = format!(
-            "trust_dir = {:?}\nstate_dir = {:?}\ntime_zone = \"Europe/Amsterdam\"\n\
+            "name = \"Gallery 3, retable\"\ntrust_dir = {:?}\nstate_dir = {:?}\ntime_zone = \"Europe/Amsterdam\"\n\
              [output]\nkind = \"headless\"\ndir = {:?}\nprojectors = 2\n\
              [inputs]\ncontrol_socket = {:?}\n[status]\nenabled = true\nlisten = \"127.0.0.1:{port}\"\n\
              {pj}[hours]\n{hours}\n",
@@ -165,6 +165,7 @@ fn open_stage_powers_the_projectors_reports_them_and_mutes_when_dark() {
     });
     assert_eq!(v["opening"]["open"], true, "{v:#}");
     assert_eq!(v["clock"]["zone"], "Europe/Amsterdam");
+    assert_eq!(v["appliance"]["name"], "Gallery 3, retable");
     assert_eq!(v["bundle"]["status"], "loaded");
     assert_eq!(v["bundle"]["object_id"], "test-jar-1");
     assert!(good.commands().iter().any(|c| c.contains("POWR 1")), "{:?}", good.commands());

@@ -12,6 +12,8 @@ use super::snapshot::*;
 
 /// Everything a snapshot is made of, as the event loop has it.
 pub struct Parts<'a> {
+    /// The stage's configured name.
+    pub name: Option<&'a str>,
     pub version: &'a str,
     pub uptime_s: u64,
     /// Ledger time, Unix ms.
@@ -128,7 +130,11 @@ pub fn snapshot(p: &Parts<'_>) -> Snapshot {
     };
     Snapshot {
         schema: SCHEMA,
-        appliance: Appliance { name: None, version: p.version.to_string(), uptime_s: p.uptime_s },
+        appliance: Appliance {
+            name: p.name.map(str::to_string),
+            version: p.version.to_string(),
+            uptime_s: p.uptime_s,
+        },
         clock: Clock { local: local(p.now_ms), zone: p.zone.to_string(), unix_ms: p.now_ms },
         state: StateInfo { kind, detail },
         opening: p.opening.clone(),
