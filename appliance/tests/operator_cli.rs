@@ -181,5 +181,6 @@ fn identify_lights_one_projector_within_the_bound_and_the_ledger_pays() {
         .unwrap_or_else(|| panic!("no identify row in {csv_text}"));
     assert_eq!(&row[2], "identify:1");
     let lux: f64 = row[3].parse().unwrap();
+    eprintln!("identify pattern of projector 2: {lux} lx paid");
     assert!(lux > 0.0 && lux <= 47.5, "{lux}");
 }
