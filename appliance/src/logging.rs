@@ -21,14 +21,10 @@ pub enum LogStyle {
     Journal,
 }
 
-/// Picks the style. `journal_stream` is `$JOURNAL_STREAM` ("DEVICE:INODE" of the journal's
+/// Picks the style (`colour_terminal`: stderr is a terminal that wants colour, [`wants_colour`]). `journal_stream` is `$JOURNAL_STREAM` ("DEVICE:INODE" of the journal's
 /// stream, set by systemd); it counts only when it names stderr (`stderr_id`, when known): a
 /// program started from a unit with its stderr redirected elsewhere is not writing there.
-pub fn style(
-    stderr_is_terminal: bool,
-    journal_stream: Option<&str>,
-    stderr_id: Option<(u64, u64)>,
-) -> LogStyle {
+pub fn style(colour_terminal: bool, journal_stream: Option<&str>, stderr_id: Option<(u64, u64)>) -> LogStyle {
     let names_stderr = |v: &str| match (v.split_once(':'), stderr_id) {
         (Some((dev, ino)), Some((d, i))) => dev.parse() == Ok(d) && ino.parse() == Ok(i),
         // stderr unknown: take systemd's word.
@@ -37,11 +33,18 @@ pub fn style(
     };
     if journal_stream.is_some_and(names_stderr) {
         LogStyle::Journal
-    } else if stderr_is_terminal {
+    } else if colour_terminal {
         LogStyle::Terminal
     } else {
         LogStyle::Plain
     }
+}
+
+/// Whether a terminal wants colour: not with `NO_COLOR` set (no-color.org), nor without a
+/// `TERM` or with `TERM=dumb` (a serial console, as on a stage machine's boot console, where
+/// escape codes only garble the lines operators and tests read).
+pub fn wants_colour(term: Option<&str>, no_color: Option<&str>) -> bool {
+    no_color.is_none_or(str::is_empty) && term.is_some_and(|t| !t.is_empty() && t != "dumb")
 }
 
 /// This process's stderr's (device, inode).
@@ -109,7 +112,9 @@ where
 /// Installs the global subscriber for stderr, in the style its destination wants.
 pub fn init(filter: EnvFilter) {
     let journal = std::env::var("JOURNAL_STREAM").ok();
-    let style = style(std::io::stderr().is_terminal(), journal.as_deref(), stderr_id());
+    let (term, no_color) = (std::env::var("TERM").ok(), std::env::var("NO_COLOR").ok());
+    let colour = std::io::stderr().is_terminal() && wants_colour(term.as_deref(), no_color.as_deref());
+    let style = style(colour, journal.as_deref(), stderr_id());
     if tracing::subscriber::set_global_default(subscriber(style, filter, std::io::stderr)).is_err() {
         // Only a second call gets here; the first subscriber stays.
         tracing::warn!("logging was already set up");
@@ -174,6 +179,15 @@ mod tests {
         assert!(!plain.contains("<3>"));
         // The check above can fail: the terminal style does write escapes.
         assert!(logged(LogStyle::Terminal).contains('\x1b'));
+    }
+
+    #[test]
+    fn colour_only_where_a_terminal_wants_it() {
+        assert!(wants_colour(Some("xterm-256color"), None));
+        assert!(wants_colour(Some("linux"), Some("")));
+        assert!(!wants_colour(Some("xterm"), Some("1")));
+        assert!(!wants_colour(Some("dumb"), None));
+        assert!(!wants_colour(None, None));
     }
 
     #[test]
