@@ -5,10 +5,12 @@
 //! second dark layer) and so does the program's exit. Closed: the projectors go to standby,
 //! the page says closed and a press is refused.
 
-use std::io::{BufRead, BufReader, Write};
+mod common;
+
 use std::path::PathBuf;
-use std::process::{Child, Command};
 use std::time::{Duration, Instant};
+
+use common::Running;
 
 use restage_appliance::pjlink::PowerState;
 use restage_appliance::pjlink::sim::{Fault, SimConfig, SimProjector};
@@ -63,14 +65,7 @@ impl Stage {
     }
 
     fn start(&self) -> Running {
-        Running(
-            Command::new(env!("CARGO_BIN_EXE_restage-appliance"))
-                .args(["run", "--config"])
-                .arg(self.path("config.toml"))
-                .env("RESTAGE_LOG", "warn")
-                .spawn()
-                .unwrap(),
-        )
+        Running::start(&self.path("config.toml"))
     }
 
     fn get(&self, path: &str) -> Option<String> {
@@ -97,28 +92,7 @@ impl Stage {
     }
 
     fn ask(&self, command: &str) -> String {
-        let mut s = std::os::unix::net::UnixStream::connect(self.path("control.sock")).unwrap();
-        s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-        s.write_all(format!("{command}\n").as_bytes()).unwrap();
-        let mut line = String::new();
-        BufReader::new(s).read_line(&mut line).unwrap();
-        line.trim_end().to_string()
-    }
-}
-
-/// The appliance process; SIGTERM and wait on drop.
-struct Running(Child);
-
-impl Running {
-    fn stop(&mut self) {
-        let _ = Command::new("kill").arg("-TERM").arg(self.0.id().to_string()).status();
-        let _ = self.0.wait();
-    }
-}
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        self.stop();
+        common::ask(&self.path("control.sock"), command, Duration::from_secs(20)).expect("an answer")
     }
 }
 

@@ -4,8 +4,9 @@
 //! fades out, the stage goes dark and presses are refused with the reason. The bundle is
 //! written with `restage_shared`'s synthetic example; the ledger is read afterwards.
 
-use std::io::{BufRead, BufReader, Write};
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use restage_appliance::clock::{SteppableTime, SystemTime, TimeSource};
@@ -100,7 +101,8 @@ impl Stage {
     }
 
     fn ask(&self, command: &str) -> String {
-        ask(&self.socket(), command, Duration::from_secs(20)).expect("an answer on the control socket")
+        common::ask(&self.socket(), command, Duration::from_secs(20))
+            .expect("an answer on the control socket")
     }
 
     /// Waits until the status satisfies `f`.
@@ -120,23 +122,6 @@ impl Stage {
         Ledger::open(&self.path("state/ledger.sqlite"), LocalZone::named("Europe/Amsterdam").unwrap())
             .unwrap()
     }
-}
-
-fn ask(socket: &Path, command: &str, timeout: Duration) -> Option<String> {
-    let start = Instant::now();
-    while start.elapsed() < timeout {
-        if let Ok(mut s) = std::os::unix::net::UnixStream::connect(socket) {
-            s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
-            if s.write_all(format!("{command}\n").as_bytes()).is_ok() {
-                let mut line = String::new();
-                if BufReader::new(s).read_line(&mut line).is_ok() && !line.is_empty() {
-                    return Some(line.trim_end().to_string());
-                }
-            }
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    None
 }
 
 #[test]

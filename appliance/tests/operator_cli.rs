@@ -2,6 +2,8 @@
 //! until when; `ledger export --csv` writes the light history a loan agreement asks for and
 //! never overwrites a file; the configuration path defaults to /etc/restage/appliance.toml.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -121,16 +123,6 @@ fn the_configuration_defaults_to_etc_restage() {
     assert!(!o.status.success() && err.contains("/etc/restage/appliance.toml"), "{err}");
 }
 
-/// The running appliance (headless recorder, control socket); killed with SIGTERM on drop.
-struct Running(std::process::Child);
-
-impl Drop for Running {
-    fn drop(&mut self) {
-        let _ = Command::new("kill").arg("-TERM").arg(self.0.id().to_string()).status();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn identify_lights_one_projector_within_the_bound_and_the_ledger_pays() {
     let s = stage();
@@ -140,14 +132,7 @@ fn identify_lights_one_projector_within_the_bound_and_the_ledger_pays() {
     std::fs::write(&s.config, text).unwrap();
     let bundle = s.root.join("new.restage");
     assert!(appliance(&["install", bundle.to_str().unwrap()], &s.config).0);
-    let _run = Running(
-        Command::new(env!("CARGO_BIN_EXE_restage-appliance"))
-            .args(["run", "--config"])
-            .arg(&s.config)
-            .env("RESTAGE_LOG", "warn")
-            .spawn()
-            .unwrap(),
-    );
+    let _run = common::Running::start(&s.config);
     let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
     while !sock.exists() {
         assert!(std::time::Instant::now() < deadline, "the appliance did not open its control socket");
