@@ -134,7 +134,8 @@ fn older_or_tampered_bundle_keeps_the_previous_good_one() {
     assert!(a.starts_with("error:") && a.contains("refused"), "{a}");
     let v = wait_status(&sock, Duration::from_secs(5), |_| true);
     assert_eq!(v["state"], "idle");
-    assert!(v["ledger"]["last_events"][0]["kind"] == "refused", "{v}");
+    let events = v["ledger"]["last_events"].as_array().cloned().unwrap_or_default();
+    assert!(events.iter().any(|e| e["kind"] == "refused"), "{v}");
     child.kill().unwrap();
     child.wait().unwrap();
 

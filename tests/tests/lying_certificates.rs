@@ -78,7 +78,9 @@ fn appliance_refuses_to_load_each_lying_certificate_and_stays_dark() {
         child.wait().unwrap();
         assert!(detail.contains("refused") && detail.contains(expected(lie)), "{lie:?}: {detail}");
         assert!(pressed.contains("dark") && after["state"] == "dark", "{lie:?}: {pressed} {after}");
-        assert!(v["ledger"]["last_events"][0]["kind"] == "refused", "{lie:?}: {v}");
+        // The refusal is recorded (an alert about the dark stage may follow it).
+        let events = v["ledger"]["last_events"].as_array().cloned().unwrap_or_default();
+        assert!(events.iter().any(|e| e["kind"] == "refused"), "{lie:?}: {v}");
         let recs = stage.records();
         assert!(recs.iter().all(|r| r.frames.is_empty()), "{lie:?}: an output was lit: {:?}", recs.last());
     }
