@@ -512,20 +512,20 @@ impl App {
             let _ = self.ledger.log_event(now.unix_ms, "alert", &a.message);
         }
         alert_command::dispatch(&changes, self.alert_command.as_ref());
-        self.drive_projectors();
-        self.publish_snapshot(ledger_status.as_ref().map_err(|e| e.to_string()), &projectors);
+        let opening = self.config.opening_hours().at(now.unix_ms);
+        self.drive_projectors(&opening);
+        self.publish_snapshot(&opening, ledger_status.as_ref().map_err(|e| e.to_string()), &projectors);
     }
 
     /// What the projectors themselves should do (PJLink): powered on from `power_on_lead_s`
     /// before opening until closing, in standby otherwise; picture muted whenever the stage
     /// is dark for a reason (a second dark layer under a fault, a stop, closed hours, an
     /// exhausted budget, no bundle).
-    fn drive_projectors(&self) {
+    fn drive_projectors(&self, opening: &crate::hours::Opening) {
         let Some(pj) = &self.pjlink else { return };
         let now = self.now().unix_ms;
         let lead_ms = self.config.pjlink.as_ref().map_or(0, |c| c.power_on_lead_s * 1000) as i64;
-        let hours = self.config.opening_hours();
-        let wanted_on = hours.at(now).open || hours.at(now + lead_ms).open;
+        let wanted_on = opening.open || self.config.opening_hours().at(now + lead_ms).open;
         pj.want(if wanted_on { Want::On } else { Want::Standby });
         // Not between showings (a dark idle look): unmuting takes a network round trip, and
         // a visitor's press must light the object at once.
@@ -537,7 +537,12 @@ impl App {
     }
 
     /// Publishes what the status page shows now.
-    fn publish_snapshot(&self, ledger: Result<&LedgerStatus, String>, projectors: &[ProjectorStatus]) {
+    fn publish_snapshot(
+        &self,
+        opening: &crate::hours::Opening,
+        ledger: Result<&LedgerStatus, String>,
+        projectors: &[ProjectorStatus],
+    ) {
         let now = self.now();
         let zone = self.config.local_zone();
         let local = |t: i64| zone.local_time(t);
@@ -550,7 +555,7 @@ impl App {
             zone: &zone.name(),
             local: &local,
             state: self.player.state(),
-            opening: status::opening(&self.config.opening_hours().at(now.unix_ms), &local),
+            opening: status::opening(opening, &local),
             ledger,
             show: self.player.show().map(|s| s.as_ref()),
             projectors,
@@ -678,11 +683,6 @@ impl App {
         } else if self.player.closed_reason() != Some(opening.reason.as_str()) {
             self.step(Event::Close { reason: opening.reason });
         }
-    }
-
-    /// Outside opening hours (presses are refused): for the visitor's button LED.
-    pub fn is_closed(&self) -> bool {
-        self.player.is_closed()
     }
 
     fn tick(&mut self) {
