@@ -25,7 +25,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             dir,
             &VerifyOptions::at(match args.now {
                 Some(t) => t,
-                None => super::now_unix_s()?,
+                None => crate::steps::now_unix_s()?,
             }),
         )?,
         None => inspect_file(&args.bundle)?,

@@ -1,41 +1,124 @@
-//! The `restage-author` subcommands: argument parsing, progress, and file I/O around the
-//! library's steps. One file per command.
+//! The `restage-author` subcommands on a terminal: each runs its step (`crate::steps`) under a
+//! progress bar and prints the step's summary. The reporting commands (`eval`, `eval-restore`,
+//! `inspect`) have a file each.
 
-pub mod bundle;
-pub mod calibrate;
-pub mod capture;
-pub mod classify;
-pub mod compensate;
-pub mod decode;
-pub mod demo;
-pub mod demo_chain;
 pub mod eval;
 pub mod eval_restore;
 pub mod inspect;
-pub mod keygen;
-pub mod relight;
-pub mod render;
-pub mod restore;
-pub mod simulate;
-pub mod verify;
 
-/// The one time taken at the start of a command (Unix seconds).
-pub fn now_unix_s() -> anyhow::Result<i64> {
-    use anyhow::Context;
-    Ok(std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .context("the system clock is before 1970")?
-        .as_secs() as i64)
+use anyhow::Result;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::steps::{self, Progress, StepCommand, StepSummary};
+
+/// A step's progress on stderr: a spinner with the stage's name, a bar once it counts.
+pub struct Bar {
+    bar: ProgressBar,
+    counting: std::sync::atomic::AtomicBool,
 }
 
-/// A progress bar on stderr for `len` steps of a long command.
-pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
-    let bar = indicatif::ProgressBar::new(len);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_message(what.to_string());
-    bar
+impl Bar {
+    pub fn new() -> Bar {
+        let bar = ProgressBar::new_spinner().with_style(spinner_style());
+        bar.enable_steady_tick(std::time::Duration::from_millis(120));
+        Bar { bar, counting: false.into() }
+    }
+}
+
+impl Drop for Bar {
+    fn drop(&mut self) {
+        self.bar.finish_and_clear();
+    }
+}
+
+fn spinner_style() -> ProgressStyle {
+    ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
+        .unwrap_or_else(|_| ProgressStyle::default_spinner())
+}
+
+fn bar_style() -> ProgressStyle {
+    ProgressStyle::with_template("{msg:>12} [{bar:40}] {pos}/{len} {elapsed}")
+        .map(|s| s.progress_chars("=> "))
+        .unwrap_or_else(|_| ProgressStyle::default_bar())
+}
+
+impl Progress for Bar {
+    fn stage(&self, what: &str) {
+        if self.counting.swap(false, std::sync::atomic::Ordering::Relaxed) {
+            self.bar.set_style(spinner_style());
+        }
+        self.bar.set_message(what.to_string());
+    }
+
+    fn count(&self, done: u64, total: u64) {
+        if !self.counting.swap(true, std::sync::atomic::Ordering::Relaxed) {
+            self.bar.set_style(bar_style());
+        }
+        self.bar.set_length(total);
+        self.bar.set_position(done);
+    }
+}
+
+/// Runs `f` under a progress bar, cleared before the caller prints.
+fn with_bar<T>(f: impl FnOnce(&dyn Progress) -> Result<T>) -> Result<T> {
+    let bar = Bar::new();
+    let out = f(&bar);
+    drop(bar);
+    out
+}
+
+pub fn step(step: &StepCommand) -> Result<()> {
+    match with_bar(|p| step.run(p))? {
+        StepSummary::Classify(s) => println!("{s}"),
+        StepSummary::Restore(s) => println!("{s}"),
+        StepSummary::Compensate(s) => eprintln!("{s}"),
+        StepSummary::Relight(s) => eprintln!("{s}"),
+        StepSummary::Render(s) => tracing::info!("{s}"),
+    }
+    Ok(())
+}
+
+pub fn capture(args: &steps::capture::CaptureArgs) -> Result<()> {
+    let s = with_bar(|p| steps::capture::run(args, p))?;
+    tracing::info!("{s}");
+    Ok(())
+}
+
+pub fn simulate(args: &steps::simulate::Args) -> Result<()> {
+    with_bar(|p| steps::simulate::run(args, p)).map(|_| ())
+}
+
+pub fn decode(args: &steps::decode::DecodeArgs) -> Result<()> {
+    with_bar(|p| steps::decode::run(args, p)).map(|_| ())
+}
+
+pub fn calibrate(args: &steps::calibrate::CalibrateArgs) -> Result<()> {
+    with_bar(|p| steps::calibrate::run(args, p)).map(|_| ())
+}
+
+pub fn demo(args: &steps::demo::Args) -> Result<()> {
+    let s = with_bar(|p| steps::demo::run(args, p))?;
+    print!("{}{}", s.bundle, s.verified);
+    eprintln!("\n{}", s.summary);
+    Ok(())
+}
+
+pub fn keygen(args: &steps::keygen::KeygenArgs) -> Result<()> {
+    let (id, private, public) = steps::keygen::generate(&args.out)?;
+    println!("key id      {id}");
+    println!("private key {} (keep it secret; mode 0600)", private.display());
+    println!("public key  {} (copy into the appliance's trust directory)", public.display());
+    Ok(())
+}
+
+pub fn bundle(args: &steps::bundle::BundleArgs) -> Result<()> {
+    let manifest = steps::bundle::write(args)?;
+    print!("{}", restage_shared::bundle::describe(&manifest, None));
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+pub fn verify(args: &steps::verify::VerifyArgs) -> Result<()> {
+    print!("{}", steps::verify::report(args)?);
+    Ok(())
 }

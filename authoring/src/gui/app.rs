@@ -1127,7 +1127,7 @@ impl App {
         if ui.button("make a new key").clicked() {
             match super::export::new_key(
                 &self.project,
-                &format!("key-{}", crate::cli::now_unix_s().unwrap_or(0)),
+                &format!("key-{}", crate::steps::now_unix_s().unwrap_or(0)),
             ) {
                 Ok((k, t)) => {
                     e.key = k;

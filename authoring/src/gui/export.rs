@@ -119,7 +119,7 @@ pub fn write_and_verify(project: &Project, settings: &Settings) -> Result<String
     }
     let key = project.path(&e.key);
     let out = project.path(&e.out);
-    let manifest = crate::cli::bundle::write(&crate::cli::bundle::BundleArgs {
+    let manifest = crate::steps::bundle::write(&crate::steps::bundle::BundleArgs {
         description: desc_path,
         key,
         out: out.clone(),
@@ -127,7 +127,7 @@ pub fn write_and_verify(project: &Project, settings: &Settings) -> Result<String
         created: None,
     })?;
     let trust = project.path(&e.trust);
-    let verified = crate::cli::verify::report(&crate::cli::verify::VerifyArgs {
+    let verified = crate::steps::verify::report(&crate::steps::verify::VerifyArgs {
         bundle: out.clone(),
         trust,
         now: None,
@@ -154,7 +154,7 @@ pub fn new_key(project: &Project, name: &str) -> Result<(String, String)> {
     let trust = project.path("trust");
     std::fs::create_dir_all(&keys)?;
     std::fs::create_dir_all(&trust)?;
-    let (_, _, public) = crate::cli::keygen::generate(&keys.join(name))?;
+    let (_, _, public) = crate::steps::keygen::generate(&keys.join(name))?;
     let name_pub = public.file_name().context("public key file name")?;
     std::fs::copy(&public, trust.join(name_pub)).with_context(|| format!("copying {}", public.display()))?;
     Ok((format!("keys/{name}.pem"), "trust".into()))

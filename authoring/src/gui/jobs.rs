@@ -22,7 +22,7 @@ use restage_authoring::stage_sim::{self, VirtualStage};
 use super::doc::{HintLayer, Scene, Small, Step, Steps};
 use super::project::{CLASSIFY_DIR, Project, RELIT_FILE, RESTORE_DIR};
 use super::views::ViewKind;
-use crate::Command;
+use crate::steps::{self, StepCommand};
 
 /// What the window asks for.
 #[derive(Clone, Debug)]
@@ -256,9 +256,9 @@ impl Runner {
         }
         let lines = self.project.commands(step, &req.small, &req.hints, &dir);
         for (i, line) in lines.iter().enumerate() {
-            let command = crate::parse_line(line)?;
+            let command = steps::parse_line(line)?;
             if step == Step::Restore
-                && let Command::Restore(args) = &command
+                && let StepCommand::Restore(args) = &command
                 && let Some(rect) = req.visible
                 && req.small.settings.restore.regions.is_empty()
             {
@@ -270,18 +270,20 @@ impl Runner {
                 }
             }
             match command {
-                Command::Compensate(args) => {
+                StepCommand::Compensate(args) => {
                     let (model, prep) = self.prepared(&args.stage_dir, args.reduction)?;
-                    crate::cli::compensate::run_prepared(&args, &model, &prep)?;
+                    steps::compensate::run_prepared(&args, &model, &prep)?;
                 }
-                Command::Render(args) => {
+                StepCommand::Render(args) => {
                     let stage = self.virtual_stage(&args.capture)?;
                     if let Some(parent) = args.out.parent() {
                         std::fs::create_dir_all(parent)?;
                     }
-                    crate::cli::render::run_with(&args, &stage)?;
+                    steps::render::run_with(&args, &stage)?;
                 }
-                other => crate::dispatch(other)?,
+                other => {
+                    other.run(&steps::Quiet)?;
+                }
             }
             tracing::debug!("{} line {} done", step.name(), i + 1);
         }
@@ -293,14 +295,14 @@ impl Runner {
     /// and the rectangle is the region (its border anchors contours as in the whole image).
     fn restore_visible_first(
         &self,
-        args: &crate::cli::restore::RestoreArgs,
+        args: &steps::restore::RestoreArgs,
         rect: [u32; 4],
         generation: u64,
         send: &mut dyn FnMut(Msg),
     ) -> Result<()> {
         const MARGIN: u32 = 16;
         let t0 = Instant::now();
-        let inputs = crate::cli::restore::load_inputs(args)?;
+        let inputs = steps::restore::load_inputs(args)?;
         let [x, y, width, height] = rect;
         let (w, h) = (inputs.labels.width, inputs.labels.height);
         let (x0, y0) = (x.saturating_sub(MARGIN), y.saturating_sub(MARGIN));

@@ -25,7 +25,7 @@ use anyhow::{Result, bail};
 use restage_authoring::acquire::AcquireConfig;
 use restage_authoring::stage_sim::{SceneConfig, SceneName};
 
-use crate::cli::simulate::Size;
+use crate::steps::simulate::Size;
 use doc::Steps;
 use project::{Opened, Project};
 

@@ -537,14 +537,14 @@ impl Project {
     ) -> Result<Opened> {
         let dir = new_project_dir(dir)?;
         let capture = dir.join("capture");
-        let manifest = crate::cli::simulate::simulate(scene, acq, &capture)?;
+        let manifest = crate::steps::simulate::simulate(scene, acq, &capture, &crate::steps::Quiet)?;
         let truth = capture.join(GROUND_TRUTH_DIR).join("stage");
         restage_authoring::stage_model::StageModel::load(&truth)
             .with_context(|| format!("reading {}", truth.display()))?
             .save(&dir.join("stage"))
             .context("writing the project's stage model")?;
         let (picks, mask) =
-            crate::cli::classify::picks_from_ground_truth(&capture, &dir.join(CLASSIFY_DIR), scene.seed)?;
+            crate::steps::classify::picks_from_ground_truth(&capture, &dir.join(CLASSIFY_DIR), scene.seed)?;
         let mut settings = Settings::default();
         if let Some(k) = Picks::load(&picks)?.colours.iter().position(|c| c.name == "clay") {
             settings.restore.loss = vec![k as u8];
@@ -586,7 +586,7 @@ impl Project {
         let stage = restage_authoring::stage_sim::VirtualStage::new(scene)?;
         let photo = stage.capture(&stage.black_frames(), true, 0)?;
         photo.save_linear16(&dir.join("photo.png"))?;
-        let (picks, present) = crate::cli::demo_chain::stand_in_picks(&stage, scene.seed)?;
+        let (picks, present) = crate::steps::demo_chain::stand_in_picks(&stage, scene.seed)?;
         std::fs::create_dir_all(dir.join(CLASSIFY_DIR))?;
         picks.save(&dir.join(PICKS_FILE))?;
         let cam = stage.camera();

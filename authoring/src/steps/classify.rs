@@ -1,12 +1,14 @@
-//! `restage-author classify PHOTO --picks PICKS --out DIR`: colour classification of a
-//! diffusely lit photo (paper §4.1) into `labels.png`, `palette.json` and `preview.png`.
+//! The classify step (`restage-author classify PHOTO --picks PICKS --out DIR`): colour
+//! classification of a diffusely lit photo (paper §4.1) into `labels.png`, `palette.json` and
+//! `preview.png`.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use super::Progress;
+
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use restage_authoring::classify::{self, ClassifyOptions, Picks};
 use restage_authoring::imgio::LinearImage;
 
@@ -64,11 +66,10 @@ impl std::fmt::Display for ClassifySummary {
     }
 }
 
-pub fn run(args: &ClassifyArgs) -> Result<()> {
+/// Runs the step as its arguments say.
+pub fn run(args: &ClassifyArgs, progress: &dyn Progress) -> Result<ClassifySummary> {
     let opts = ClassifyOptions { max_iterations: args.max_iterations, prior_picks: args.prior_picks };
-    let summary = classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, &opts)?;
-    println!("{summary}");
-    Ok(())
+    classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, &opts, progress)
 }
 
 /// Reads the photo, picks and mask, classifies and writes the three outputs into `out`.
@@ -78,11 +79,9 @@ pub fn classify_files(
     mask_path: Option<&Path>,
     out: &Path,
     opts: &ClassifyOptions,
+    progress: &dyn Progress,
 ) -> Result<ClassifySummary> {
-    let bar =
-        ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}")?);
-    bar.enable_steady_tick(Duration::from_millis(120));
-    bar.set_message("reading photo and picks");
+    progress.stage("reading photo and picks");
     let photo =
         LinearImage::load(photo_path).with_context(|| format!("reading photo {}", photo_path.display()))?;
     let picks = Picks::load(picks_path).with_context(|| format!("reading picks {}", picks_path.display()))?;
@@ -90,13 +89,13 @@ pub fn classify_files(
         Some(p) => Some(load_mask(p, photo.width, photo.height)?),
         None => None,
     };
-    bar.set_message("fitting weights and clustering");
+    progress.stage("fitting weights and clustering");
     let t0 = Instant::now();
     let result = classify::classify(&photo, &picks, mask.as_deref(), opts).with_context(|| {
         format!("classifying {} with picks {}", photo_path.display(), picks_path.display())
     })?;
     let compute = t0.elapsed();
-    bar.set_message("writing outputs");
+    progress.stage("writing outputs");
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let (labels_path, palette_path, preview_path) = classify::output_paths(out);
     result.labels.save(&labels_path)?;
@@ -104,7 +103,6 @@ pub fn classify_files(
     classify::preview(&result.labels, &result.palette)
         .save(&preview_path)
         .with_context(|| format!("writing {}", preview_path.display()))?;
-    bar.finish_and_clear();
     let p = &result.palette;
     Ok(ClassifySummary {
         classes: p.classes.len(),

@@ -1,15 +1,16 @@
-//! `restage-author compensate STAGE_DIR RESTORED --ebound-lux L --m 8 --margin 0.05 --out DIR`:
+//! The compensate step (`restage-author compensate STAGE_DIR RESTORED --ebound-lux L --m 8 --margin 0.05 --out DIR`:
 //! one frame per projector for a restored image, under the light bound, with a report.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args as ClapArgs;
-use indicatif::{ProgressBar, ProgressStyle};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
 use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::stage_model::StageModel;
+
+use super::Progress;
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
@@ -46,34 +47,45 @@ pub fn restored_path(p: &Path) -> PathBuf {
     if p.is_dir() { p.join("restored.png") } else { p.to_path_buf() }
 }
 
-pub fn run(args: Args) -> Result<()> {
-    let params = params(&args)?;
-    let bar =
-        ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} ({elapsed})")?);
-    bar.enable_steady_tick(std::time::Duration::from_millis(120));
-    bar.set_message("loading the stage model");
+/// What one compensation run did: its figures and where it wrote them.
+#[derive(Debug)]
+pub struct CompensateSummary {
+    pub stats: compensate::Stats,
+    pub projectors: usize,
+    pub out: PathBuf,
+}
+
+impl std::fmt::Display for CompensateSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = &self.stats;
+        write!(
+            f,
+            "{} frames in {}: peak {:.2} lx (limit {:.2} lx, E_bound {} lx), scale {:.4}, \
+             limited by bound {:.2} % / saturation {:.2} % of {} points; report: {}",
+            self.projectors,
+            self.out.display(),
+            s.peak_lux,
+            s.limit_lux,
+            s.e_bound_lux,
+            s.scale,
+            100.0 * s.limited_by_bound as f64 / s.covered_points as f64,
+            100.0 * s.limited_by_saturation as f64 / s.covered_points as f64,
+            s.covered_points,
+            self.out.join("report/index.html").display()
+        )
+    }
+}
+
+/// Runs the step as its arguments say.
+pub fn run(args: &Args, progress: &dyn Progress) -> Result<CompensateSummary> {
+    let params = params(args)?;
+    progress.stage("loading the stage model");
     let stage = StageModel::load(&args.stage_dir)
         .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;
-    bar.set_message("preparing geometry and the light certificate");
+    progress.stage("preparing geometry and the light certificate");
     let prep = Prepared::new(&stage, params.reduction).context("preparing the stage model")?;
-    bar.set_message("computing frames and enforcing the light bound");
-    let s = run_prepared(&args, &stage, &prep)?;
-    bar.finish_and_clear();
-    eprintln!(
-        "{} frames in {}: peak {:.2} lx (limit {:.2} lx, E_bound {} lx), scale {:.4}, \
-         limited by bound {:.2} % / saturation {:.2} % of {} points; report: {}",
-        stage.projectors.len(),
-        args.out.display(),
-        s.peak_lux,
-        s.limit_lux,
-        s.e_bound_lux,
-        s.scale,
-        100.0 * s.limited_by_bound as f64 / s.covered_points as f64,
-        100.0 * s.limited_by_saturation as f64 / s.covered_points as f64,
-        s.covered_points,
-        args.out.join("report/index.html").display()
-    );
-    Ok(())
+    progress.stage("computing frames and enforcing the light bound");
+    run_prepared(args, &stage, &prep)
 }
 
 /// The parameters the arguments ask for, checked.
@@ -91,7 +103,7 @@ pub fn params(args: &Args) -> Result<Params> {
 
 /// The command's work on a loaded stage model and its preparation for `args.reduction`
 /// (the interactive tool keeps both between runs): frames, certificate and report in `args.out`.
-pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<compensate::Stats> {
+pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<CompensateSummary> {
     let params = params(args)?;
     let restored = restored_path(&args.restored);
     let target = LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
@@ -106,5 +118,5 @@ pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<
         stage.camera.width,
         stage.camera.height,
     )?;
-    Ok(comp.stats)
+    Ok(CompensateSummary { stats: comp.stats, projectors: stage.projectors.len(), out: args.out.clone() })
 }

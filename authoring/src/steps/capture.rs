@@ -44,8 +44,22 @@ pub struct CaptureArgs {
     pub patterns: PatternArgs,
 }
 
+/// What one capture wrote.
+#[derive(Debug)]
+pub struct CaptureSummary {
+    pub images: usize,
+    pub out: PathBuf,
+}
+
+impl std::fmt::Display for CaptureSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "wrote {} camera images to {}", self.images, self.out.display())
+    }
+}
+
+/// Runs the step as its arguments say, on the camera and screens they name.
 #[cfg(feature = "hardware")]
-pub fn run(args: &CaptureArgs) -> Result<()> {
+pub fn run(args: &CaptureArgs, progress: &dyn super::Progress) -> Result<CaptureSummary> {
     use anyhow::{Context, bail};
     use restage_authoring::acquire::acquire;
     use restage_authoring::capture_set::CameraIntrinsics;
@@ -75,22 +89,19 @@ pub fn run(args: &CaptureArgs) -> Result<()> {
     let mut rig = Rig { camera, projectors, light };
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
-    let bar = super::progress(0, "capturing");
+    progress.stage("capturing");
     let source = format!("capture from {}", args.camera.display());
     let manifest =
         acquire(&mut rig, &mut SystemClock::default(), &acq, &args.out, &source, &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
+            progress.count(done as u64, total as u64)
         })
         .with_context(|| format!("capturing into {}", args.out.display()))?;
-    bar.finish_and_clear();
     let images = 1 + manifest.projectors.iter().map(|p| p.shots.len()).sum::<usize>();
-    tracing::info!("wrote {images} camera images to {}", args.out.display());
-    Ok(())
+    Ok(CaptureSummary { images, out: args.out.clone() })
 }
 
 #[cfg(not(feature = "hardware"))]
-pub fn run(_: &CaptureArgs) -> Result<()> {
+pub fn run(_: &CaptureArgs, _: &dyn super::Progress) -> Result<CaptureSummary> {
     anyhow::bail!(
         "this restage-author was built without camera and projector support; rebuild with \
          `cargo build --release --features restage-authoring/hardware` (needs libclang-dev for v4l)"

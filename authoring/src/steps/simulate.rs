@@ -4,8 +4,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use super::Progress;
 use anyhow::{Context, Result};
-use indicatif::{ProgressBar, ProgressStyle};
 use restage_authoring::acquire::AcquireConfig;
 use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::stage_sim::{SceneConfig, VirtualStage};
@@ -97,14 +97,19 @@ impl Args {
     }
 }
 
-pub fn run(args: &Args) -> Result<()> {
+/// Runs the step as its arguments say.
+pub fn run(args: &Args, progress: &dyn Progress) -> Result<CaptureManifest> {
     let (scene, acq) = args.configs()?;
-    simulate(&scene, &acq, &args.out)?;
-    Ok(())
+    simulate(&scene, &acq, &args.out, progress)
 }
 
 /// Simulates `scene` and writes its capture set to `out`; returns the manifest.
-pub fn simulate(scene: &SceneConfig, acq: &AcquireConfig, out: &Path) -> Result<CaptureManifest> {
+pub fn simulate(
+    scene: &SceneConfig,
+    acq: &AcquireConfig,
+    out: &Path,
+    progress: &dyn Progress,
+) -> Result<CaptureManifest> {
     let start = Instant::now();
     std::fs::create_dir_all(out).with_context(|| format!("cannot create output folder {}", out.display()))?;
     tracing::info!(
@@ -119,19 +124,10 @@ pub fn simulate(scene: &SceneConfig, acq: &AcquireConfig, out: &Path) -> Result<
     );
     let stage = VirtualStage::new(scene)?;
     tracing::info!("geometry ready in {:.1} s", start.elapsed().as_secs_f64());
-    let bar = ProgressBar::new(0).with_style(
-        ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} images, {eta} left")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_message("capturing");
+    progress.stage("capturing");
     let manifest = stage
-        .write_capture_set(out, acq, &mut |done, total| {
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        })
+        .write_capture_set(out, acq, &mut |done, total| progress.count(done as u64, total as u64))
         .with_context(|| format!("writing the capture set to {}", out.display()))?;
-    bar.finish_and_clear();
     let images = 1 + manifest.projectors.iter().map(|p| p.shots.len()).sum::<usize>();
     tracing::info!(
         "wrote {images} camera images to {} in {:.1} s",

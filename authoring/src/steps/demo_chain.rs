@@ -21,10 +21,28 @@ use restage_authoring::relight::{self, Lighting};
 use restage_authoring::stage_model::StageModel;
 use restage_authoring::stage_sim::{SceneConfig, VirtualStage};
 
+use super::Progress;
+
 /// Light bound of the demo's bundle, lux (CIE 157 "low sensitivity" is 200 lx).
 const E_BOUND_LUX: f64 = 150.0;
 const MARGIN: f64 = 0.05;
 
+/// What the demo's chain printed in its steps: the bundle's description, the verification's
+/// lines and the one-screen summary (also written as `summary.txt`).
+#[derive(Debug, Default)]
+pub struct ChainSummary {
+    pub bundle: String,
+    pub verified: String,
+    pub summary: String,
+}
+
+impl std::fmt::Display for ChainSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}{}\n{}", self.bundle, self.verified, self.summary)
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
 pub fn run_chain(
     out: &Path,
     capture_dir: &Path,
@@ -33,7 +51,8 @@ pub fn run_chain(
     seed: u64,
     device: Device,
     start: Instant,
-) -> Result<()> {
+    progress: &dyn Progress,
+) -> Result<ChainSummary> {
     let mut summary = String::new();
     let mut log = |line: String| {
         tracing::info!("{line}");
@@ -107,6 +126,7 @@ pub fn run_chain(
         Some(&mask_path),
         &classify_dir,
         &restage_authoring::classify::ClassifyOptions::default(),
+        progress,
     )?;
     log(format!(
         "step 3 classify ({:.1} s): {cls}; picks drawn from the ground-truth label map (stand-in for clicks)",
@@ -132,7 +152,7 @@ pub fn run_chain(
         picks: Some(picks_path.clone()),
         grid: "auto".into(),
     };
-    let rs = super::restore::restore_files(&rargs)?;
+    let rs = super::restore::restore_files(&rargs, progress)?;
     log(format!("step 4 restore ({:.1} s): {rs}", at()));
     let restored =
         LinearImage::load(&restore_dir.join("restored.png")).context("reading the restored image")?;
@@ -247,13 +267,19 @@ pub fn run_chain(
     let desc_path = out.join("bundle.toml");
     std::fs::write(&desc_path, desc)?;
     let bundle_path = out.join("demo.restage");
-    super::bundle::run(&super::bundle::BundleArgs {
+    progress.stage("signing the bundle");
+    let bundle_manifest = super::bundle::write(&super::bundle::BundleArgs {
         description: desc_path,
         key: private,
         out: bundle_path.clone(),
         zstd: 3,
         created: None,
     })?;
+    let bundle = format!(
+        "{}wrote {}\n",
+        restage_shared::bundle::describe(&bundle_manifest, None),
+        bundle_path.display()
+    );
     let size = std::fs::metadata(&bundle_path)?.len();
     log(format!(
         "step 7 bundle ({:.1} s): {} ({:.1} MB), signed with a demo key",
@@ -263,7 +289,8 @@ pub fn run_chain(
     ));
 
     // Step 8: verify as the appliance would (signature, hashes, every scene's light check).
-    super::verify::run(&super::verify::VerifyArgs {
+    progress.stage("verifying the bundle");
+    let verified = super::verify::report(&super::verify::VerifyArgs {
         bundle: bundle_path.clone(),
         trust: trust.clone(),
         now: None,
@@ -291,8 +318,7 @@ pub fn run_chain(
     log(format!("demo chain finished in {:.1} s", at()));
     let summary_path = out.join("summary.txt");
     std::fs::write(&summary_path, &summary)?;
-    eprintln!("\n{summary}");
-    Ok(())
+    Ok(ChainSummary { bundle, verified, summary })
 }
 
 /// The demo's stand-in for a conservator's clicks: 12 seeded pixels per paint colour present

@@ -1,4 +1,4 @@
-//! `restage-author decode`: structured-light images to correspondence maps and a coverage
+//! The decode step (`restage-author decode`): structured-light images to correspondence maps and a coverage
 //! report, for our capture sets and for Gray-code captures in OpenCV's order.
 
 use std::path::{Path, PathBuf};
@@ -9,6 +9,8 @@ use restage_authoring::calibrate::CalibrateError;
 use restage_authoring::calibrate::decode::{self, CaptureImages, DecodeParams, DecodeQuality};
 use restage_authoring::calibrate::selfcal::{self, ProjectorObservations, SelfCalParams};
 use restage_authoring::capture_set::{CameraIntrinsics, CaptureManifest};
+
+use super::Progress;
 
 #[derive(Args)]
 pub struct DecodeArgs {
@@ -53,7 +55,9 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     Ok((p(w)?, p(h)?))
 }
 
-pub fn run(args: DecodeArgs) -> Result<()> {
+/// Runs the step as its arguments say; returns each projector's decode quality (also written
+/// to `decode.json`).
+pub fn run(args: &DecodeArgs, progress: &dyn Progress) -> Result<Vec<DecodeQuality>> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut params = if args.opencv_order || args.opencv_thresholds {
         DecodeParams::opencv_defaults()
@@ -88,8 +92,10 @@ pub fn run(args: DecodeArgs) -> Result<()> {
         qualities.push(d.quality);
     } else {
         let manifest = CaptureManifest::load(&args.capture)?;
-        let bar = crate::cli::progress(manifest.projectors.len() as u64, "decoding");
-        for p in &manifest.projectors {
+        progress.stage("decoding");
+        let total = manifest.projectors.len() as u64;
+        for (done, p) in manifest.projectors.iter().enumerate() {
+            progress.count(done as u64, total);
             let images = CaptureImages {
                 dir: &args.capture,
                 projector: p,
@@ -100,9 +106,7 @@ pub fn run(args: DecodeArgs) -> Result<()> {
             let d = decode::decode_projector(&images, p.index, p.width, p.height, &params)?;
             decode::save_maps(&d, p.index, p.width, p.height, &args.out)?;
             qualities.push(d.quality);
-            bar.inc(1);
         }
-        bar.finish_and_clear();
     }
     for q in &qualities {
         for w in &q.warnings {
@@ -122,7 +126,7 @@ pub fn run(args: DecodeArgs) -> Result<()> {
     let path = args.out.join("decode.json");
     std::fs::write(&path, serde_json::to_string_pretty(&qualities)?)
         .with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    Ok(qualities)
 }
 
 /// Tries self-calibration on one projector's correspondences and records the verdict in

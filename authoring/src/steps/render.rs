@@ -1,4 +1,4 @@
-//! `restage-author render`: what the camera (a visitor at the camera's place) sees when the
+//! The render step (`restage-author render`): what the camera (a visitor at the camera's place) sees when the
 //! projectors show given frames, rendered with the virtual stage's TRUE physics (rebuilt from
 //! the capture's `ground-truth/truth.json`). Frames are `FRAMES_DIR/proj<k>.png`, 8-bit RGB
 //! device values at each projector's resolution.
@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use image::RgbImage;
 use restage_authoring::stage_sim::{self, VirtualStage};
+
+use super::Progress;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
@@ -66,14 +68,29 @@ pub fn load_frames(stage: &VirtualStage, dir: &Path) -> Result<Vec<RgbImage>> {
     Ok(frames)
 }
 
-pub fn run(args: &Args) -> Result<()> {
+/// Where one render wrote its image.
+#[derive(Debug)]
+pub struct RenderSummary {
+    pub out: PathBuf,
+}
+
+impl std::fmt::Display for RenderSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "rendered {}", self.out.display())
+    }
+}
+
+/// Runs the step as its arguments say.
+pub fn run(args: &Args, progress: &dyn Progress) -> Result<RenderSummary> {
+    progress.stage("building the virtual stage");
     let config = stage_sim::load_config(&args.capture)?;
     let stage = VirtualStage::new(&config)?;
+    progress.stage("rendering");
     run_with(args, &stage)
 }
 
 /// The command's work with the virtual stage already built (the interactive tool keeps it).
-pub fn run_with(args: &Args, stage: &VirtualStage) -> Result<()> {
+pub fn run_with(args: &Args, stage: &VirtualStage) -> Result<RenderSummary> {
     let frames = load_frames(stage, &args.frames)?;
     let img = match args.noise_shot {
         Some(shot) => stage.capture(&frames, args.diffuse, shot)?,
@@ -83,6 +100,5 @@ pub fn run_with(args: &Args, stage: &VirtualStage) -> Result<()> {
     if let Some(preview) = &args.preview {
         img.save_srgb8(preview, 1.0)?;
     }
-    tracing::info!("rendered {}", args.out.display());
-    Ok(())
+    Ok(RenderSummary { out: args.out.clone() })
 }

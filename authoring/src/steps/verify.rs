@@ -28,11 +28,6 @@ pub struct VerifyArgs {
     pub min_cos: f64,
 }
 
-pub fn run(args: &VerifyArgs) -> Result<()> {
-    print!("{}", report(args)?);
-    Ok(())
-}
-
 /// Verifies and returns the lines `verify` prints.
 pub fn report(args: &VerifyArgs) -> Result<String> {
     use std::fmt::Write as _;

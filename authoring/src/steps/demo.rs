@@ -13,6 +13,8 @@ use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::stage_sim::{SceneConfig, SceneName};
 
+use super::Progress;
+use super::demo_chain::ChainSummary;
 use super::simulate;
 
 #[derive(clap::Args, Clone, Debug)]
@@ -44,7 +46,8 @@ pub fn demo_configs(seed: u64) -> (SceneConfig, AcquireConfig) {
     (scene, acq)
 }
 
-pub fn run(args: &Args) -> Result<()> {
+/// Runs the whole chain; returns what it has to say (the cli prints it).
+pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
     let start = Instant::now();
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
@@ -57,7 +60,7 @@ pub fn run(args: &Args) -> Result<()> {
 
     // Step 1: the virtual stage writes a capture set (and its ground truth).
     let (scene, acq) = demo_configs(args.seed);
-    let manifest = simulate::simulate(&scene, &acq, &capture_dir)?;
+    let manifest = simulate::simulate(&scene, &acq, &capture_dir, progress)?;
     let sheet = args.out.join("capture_contact_sheet.png");
     write_contact_sheet(&manifest, &capture_dir, &sheet)?;
     tracing::info!("step 1 (simulate) done at {:.1} s: {}", start.elapsed().as_secs_f64(), sheet.display());
@@ -77,7 +80,7 @@ pub fn run(args: &Args) -> Result<()> {
         lux.reference_pixel,
         lux.white.iter().map(|(k, v)| format!("{k}={v:.1}")).collect::<Vec<_>>().join(",")
     );
-    let report = crate::cli::calibrate::calibrate(&capture_dir, &stage_dir, known, Some(&lux))?;
+    let report = super::calibrate::calibrate(&capture_dir, &stage_dir, known, Some(&lux), progress)?;
     tracing::info!(
         "step 2 (calibrate) done at {:.1} s: {} points, reprojection RMS {:.3} px, {}",
         start.elapsed().as_secs_f64(),
@@ -95,17 +98,27 @@ pub fn run(args: &Args) -> Result<()> {
         Some(&mask),
         &classify_dir,
         &restage_authoring::classify::ClassifyOptions::default(),
+        progress,
     )?;
     tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());
 
-    super::demo_chain::run_chain(&args.out, &capture_dir, &scene, &manifest, args.seed, args.device, start)?;
+    let summary = super::demo_chain::run_chain(
+        &args.out,
+        &capture_dir,
+        &scene,
+        &manifest,
+        args.seed,
+        args.device,
+        start,
+        progress,
+    )?;
 
     tracing::info!(
         "demo finished in {:.1} s; results in {}",
         start.elapsed().as_secs_f64(),
         args.out.display()
     );
-    Ok(())
+    Ok(summary)
 }
 
 /// The lux-meter readings the virtual stage simulates (see `VirtualStage::lux_meter_session`).

@@ -17,6 +17,8 @@ use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::stage_model::StageModel;
 
+use super::Progress;
+
 #[derive(Args)]
 pub struct CalibrateArgs {
     /// Capture directory (with capture.json).
@@ -49,6 +51,7 @@ pub fn calibrate(
     out: &Path,
     known: KnownLength,
     lux: Option<&LuxReadings>,
+    progress: &dyn Progress,
 ) -> Result<GeometryReport> {
     let started = std::time::Instant::now();
     // Step 1: the capture set.
@@ -57,11 +60,12 @@ pub fn calibrate(
     let options = GeometryOptions::new(known);
 
     // Step 2: decode structured light, projector by projector.
-    let bar = crate::cli::progress(manifest.projectors.len() as u64, "decoding");
-    let decodes =
-        geometry::decode_capture(capture, &manifest, &options.decode, &mut |k| bar.set_position(k as u64))
-            .with_context(|| format!("decoding {}", capture.display()))?;
-    bar.finish_and_clear();
+    progress.stage("decoding");
+    let total = manifest.projectors.len() as u64;
+    let decodes = geometry::decode_capture(capture, &manifest, &options.decode, &mut |k| {
+        progress.count(k as u64, total)
+    })
+    .with_context(|| format!("decoding {}", capture.display()))?;
     for d in &decodes {
         let q = &d.quality;
         tracing::info!(
@@ -75,20 +79,16 @@ pub fn calibrate(
     }
 
     // Step 3: self-calibrate all projectors jointly, scale, triangulate.
-    let spinner = indicatif::ProgressBar::new_spinner().with_message("self-calibrating and triangulating");
-    spinner.enable_steady_tick(std::time::Duration::from_millis(200));
+    progress.stage("self-calibrating and triangulating");
     let (mut model, report, dense, _) = geometry::solve_geometry(&manifest, &decodes, &options)
         .with_context(|| format!("calibrating {}", capture.display()))?;
-    spinner.finish_and_clear();
 
     // Step 4: light transport (refining the correspondences), responses, vignetting, black
     // levels, lux and gain.
     if let Some(lux) = lux {
-        let bar = crate::cli::progress(1, "photometric");
         let show = |stage: &str, done: usize, total: usize| {
-            bar.set_message(stage.to_string());
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
+            progress.stage(stage);
+            progress.count(done as u64, total as u64);
         };
         let photo = photometric::calibrate_photometry(
             capture,
@@ -99,7 +99,6 @@ pub fn calibrate(
             &show,
         )
         .with_context(|| format!("photometric calibration of {}", capture.display()))?;
-        bar.finish_and_clear();
         let sizes: Vec<(u32, u32)> = manifest.projectors.iter().map(|p| (p.width, p.height)).collect();
         photo
             .save(out, &sizes)
@@ -183,12 +182,13 @@ fn save(model: &StageModel, out: &Path) -> Result<()> {
         .with_context(|| format!("writing {}", path.display()))
 }
 
-pub fn run(args: CalibrateArgs) -> Result<()> {
+/// Runs the step as its arguments say.
+pub fn run(args: &CalibrateArgs, progress: &dyn Progress) -> Result<GeometryReport> {
     let known = KnownLength::Baseline { projector: args.known_projector, mm: args.known_distance_mm };
     let lux = match (&args.lux_white, &args.lux_file) {
         (Some(text), _) => Some(LuxReadings::parse(text)?),
         (None, Some(path)) => Some(LuxReadings::load(path)?),
         (None, None) => None,
     };
-    calibrate(&args.capture, &args.out, known, lux.as_ref()).map(|_| ())
+    calibrate(&args.capture, &args.out, known, lux.as_ref(), progress)
 }

@@ -1,5 +1,5 @@
-//! `restage-author relight STAGE_DIR RESTORED [--lighting L.toml] [--photo P --noise 0.3]
-//! --out RELIT.png`: a virtually re-lit variant of a restored image (paper §5.3), ready to be
+//! The relight step (`restage-author relight STAGE_DIR RESTORED [--lighting L.toml] [--photo P --noise 0.3]
+//! --out RELIT.png`): a virtually re-lit variant of a restored image (paper §5.3), ready to be
 //! compensated as a scene of its own.
 
 use std::path::PathBuf;
@@ -10,6 +10,8 @@ use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
 use restage_authoring::relight::{self, Lighting};
 use restage_authoring::stage_model::StageModel;
+
+use super::Progress;
 
 #[derive(ClapArgs, Debug)]
 pub struct Args {
@@ -38,7 +40,22 @@ pub struct Args {
     pub out: PathBuf,
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// Where one relighting run wrote its image and its before/after comparison.
+#[derive(Debug)]
+pub struct RelightSummary {
+    pub out: PathBuf,
+    pub compare: PathBuf,
+}
+
+impl std::fmt::Display for RelightSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "relit image: {} (before/after: {})", self.out.display(), self.compare.display())
+    }
+}
+
+/// Runs the step as its arguments say.
+pub fn run(args: &Args, progress: &dyn Progress) -> Result<RelightSummary> {
+    progress.stage("relighting");
     let stage = StageModel::load(&args.stage_dir)
         .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;
     let restored = super::compensate::restored_path(&args.restored);
@@ -66,6 +83,5 @@ pub fn run(args: Args) -> Result<()> {
     let stem = args.out.file_stem().and_then(|s| s.to_str()).unwrap_or("relit");
     let cmp_path = args.out.with_file_name(format!("{stem}_compare.png"));
     cmp.save(&cmp_path).with_context(|| format!("writing {}", cmp_path.display()))?;
-    eprintln!("relit image: {} (before/after: {})", args.out.display(), cmp_path.display());
-    Ok(())
+    Ok(RelightSummary { out: args.out.clone(), compare: cmp_path })
 }

@@ -14,14 +14,6 @@ pub struct KeygenArgs {
     pub out: PathBuf,
 }
 
-pub fn run(args: &KeygenArgs) -> Result<()> {
-    let (id, private, public) = generate(&args.out)?;
-    println!("key id      {id}");
-    println!("private key {} (keep it secret; mode 0600)", private.display());
-    println!("public key  {} (copy into the appliance's trust directory)", public.display());
-    Ok(())
-}
-
 /// A new random key pair at `stem`.pem / `stem`.pub.pem: (key id, private, public).
 pub fn generate(stem: &std::path::Path) -> Result<(KeyId, PathBuf, PathBuf)> {
     let mut seed = [0u8; 32];

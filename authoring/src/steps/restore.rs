@@ -1,12 +1,13 @@
-//! `restage-author restore CLASSIFY_DIR --out DIR`: contour restoration of a classified label
+//! The restore step (`restage-author restore CLASSIFY_DIR --out DIR`): contour restoration of a classified label
 //! map (paper §4.2-4.4) into `labels.png`, `restored.png` and `before_after.png`.
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use super::Progress;
+
 use anyhow::{Context, Result, bail};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use restage_authoring::classify::Picks;
 use restage_authoring::restore::io::{
     BEFORE_AFTER_FILE, LABELS_FILE, RESTORED_FILE, class_info, display_colours, load_classified, load_hints,
@@ -99,10 +100,9 @@ impl std::fmt::Display for RestoreSummary {
     }
 }
 
-pub fn run(args: &RestoreArgs) -> Result<()> {
-    let summary = restore_files(args)?;
-    println!("{summary}");
-    Ok(())
+/// Runs the step as its arguments say.
+pub fn run(args: &RestoreArgs, progress: &dyn Progress) -> Result<RestoreSummary> {
+    restore_files(args, progress)
 }
 
 /// Parses `GxH` or `auto` (cells of about 256 px for a `w` x `h` image).
@@ -203,24 +203,20 @@ pub fn load_inputs(args: &RestoreArgs) -> Result<RestoreInputs> {
 }
 
 /// Reads the classification, restores it and writes the three outputs into `args.out`.
-pub fn restore_files(args: &RestoreArgs) -> Result<RestoreSummary> {
-    let bar =
-        ProgressBar::new_spinner().with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}")?);
-    bar.enable_steady_tick(Duration::from_millis(120));
-    bar.set_message("reading the classification");
+pub fn restore_files(args: &RestoreArgs, progress: &dyn Progress) -> Result<RestoreSummary> {
+    progress.stage("reading the classification");
     let RestoreInputs { labels, info, colours, regions, hints, params } = load_inputs(args)?;
     let (w, h) = (labels.width, labels.height);
-    bar.set_message(format!("restoring {w}x{h} in {}x{} cells", params.grid.0, params.grid.1));
+    progress.stage(&format!("restoring {w}x{h} in {}x{} cells", params.grid.0, params.grid.1));
     let t0 = Instant::now();
     let restored = restore::restore(&labels, &info, &regions, hints.as_ref(), &params)
         .with_context(|| format!("restoring {}", args.classify_dir.display()))?;
     let compute = t0.elapsed();
-    bar.set_message("writing outputs");
+    progress.stage("writing outputs");
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     restored.labels.save(&args.out.join(LABELS_FILE))?;
     save_rgb(&args.out.join(RESTORED_FILE), &restore::render_labels(&restored.labels, &colours))?;
     save_rgb(&args.out.join(BEFORE_AFTER_FILE), &restore::before_after(&labels, &restored.labels, &colours))?;
-    bar.finish_and_clear();
     let changed_pixels = labels.data.iter().zip(&restored.labels.data).filter(|(a, b)| a != b).count();
     Ok(RestoreSummary { stats: restored.stats, changed_pixels, compute })
 }

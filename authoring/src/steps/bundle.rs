@@ -6,7 +6,6 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use restage_authoring::export::{BundleDescription, build_writer};
-use restage_shared::bundle::describe;
 use restage_shared::keys::load_private_key;
 
 #[derive(Debug, clap::Args)]
@@ -27,21 +26,11 @@ pub struct BundleArgs {
     pub created: Option<i64>,
 }
 
-pub fn run(args: &BundleArgs) -> Result<()> {
-    let manifest = write(args)?;
-    print!("{}", describe(&manifest, None));
-    println!("wrote {}", args.out.display());
-    Ok(())
-}
-
 /// Signs and writes the bundle `args` describe; returns its manifest.
 pub fn write(args: &BundleArgs) -> Result<restage_shared::bundle::Manifest> {
     let created = match args.created {
         Some(t) => t,
-        None => std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .context("the system clock is before 1970")?
-            .as_secs() as i64,
+        None => super::now_unix_s()?,
     };
     let key = load_private_key(&args.key)?;
     let desc = BundleDescription::load(&args.description)?;
