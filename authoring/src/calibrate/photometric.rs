@@ -593,31 +593,92 @@ impl PhotometricReport {
                     .map_err(|source| ImageError::Write { path, source })?;
             }
         }
-        let summary = serde_json::json!({
-            "projectors": self.transport.iter().enumerate().map(|(k, t)| serde_json::json!({
-                "projector": k,
-                "dot_spacing": t.spacing,
-                "dots_snapped": t.dots,
-                "dots_predicted": t.predicted,
-                "dots_off_object": t.off_object,
-                "coverage_of_lit_pixels": t.coverage,
-                "correspondences_refined": t.refine.refined,
-                "correspondences_disagreeing": t.refine.disagreed,
-                "refine_median_shift_px": t.refine.median_shift,
-                "leakage": self.radiometry.get(k).map(|r| r.leakage),
-                "vignetting_coefficient": self.vignetting.get(k).copied().flatten(),
-                "lux": self.lux.iter().find(|l| l.projector == k).map(|l| serde_json::json!({
-                    "reading": l.reading, "reference_pixel": l.reference_pixel,
-                    "distance_mm": l.distance_mm, "lux_at_1m": l.lux_at_1m,
-                })),
-            })).collect::<Vec<_>>(),
-            "stray_lux": self.stray_lux,
-            "warnings": self.warnings,
-        });
-        let path = dir.join("photometric.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&summary).expect("summary serialises"))
+        let path = dir.join(PHOTOMETRIC_FILE);
+        let json = serde_json::to_string_pretty(&self.summary()).map_err(|e| ImageError::Write {
+            path: path.clone(),
+            source: image::ImageError::IoError(e.into()),
+        })?;
+        std::fs::write(&path, json)
             .map_err(|e| ImageError::Write { path, source: image::ImageError::IoError(e) })
     }
+
+    /// The figures `photometric.json` holds.
+    pub fn summary(&self) -> PhotometricSummary {
+        let wide = |v: [f32; 3]| v.map(f64::from);
+        PhotometricSummary {
+            projectors: (self.transport.iter().enumerate())
+                .map(|(k, t)| ProjectorPhotometry {
+                    correspondences_disagreeing: t.refine.disagreed,
+                    correspondences_refined: t.refine.refined,
+                    coverage_of_lit_pixels: t.coverage,
+                    dot_spacing: t.spacing,
+                    dots_off_object: t.off_object,
+                    dots_predicted: t.predicted,
+                    dots_snapped: t.dots,
+                    leakage: self.radiometry.get(k).map(|r| r.leakage.map(wide)),
+                    lux: self.lux.iter().find(|l| l.projector == k).map(|l| LuxFigures {
+                        distance_mm: l.distance_mm,
+                        lux_at_1m: l.lux_at_1m,
+                        reading: l.reading,
+                        reference_pixel: l.reference_pixel,
+                    }),
+                    projector: k,
+                    refine_median_shift_px: f64::from(t.refine.median_shift),
+                    vignetting_coefficient: self.vignetting.get(k).copied().flatten(),
+                })
+                .collect(),
+            stray_lux: wide(self.stray_lux),
+            version: PHOTOMETRIC_VERSION,
+            warnings: self.warnings.clone(),
+        }
+    }
+}
+
+/// The photometric summary's file name, in the stage folder.
+pub const PHOTOMETRIC_FILE: &str = "photometric.json";
+/// Version of [`PhotometricSummary`]; a reader refuses a newer one.
+pub const PHOTOMETRIC_VERSION: u32 = 1;
+
+/// `photometric.json`: the photometric calibration's figures per projector. Fields are in
+/// alphabetical order, as the file has always had them; values that are `f32` in the
+/// calibration are widened to `f64`.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PhotometricSummary {
+    pub projectors: Vec<ProjectorPhotometry>,
+    /// Stray room light per channel, lux.
+    pub stray_lux: [f64; 3],
+    pub version: u32,
+    pub warnings: Vec<String>,
+}
+
+/// One projector's figures in [`PhotometricSummary`].
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProjectorPhotometry {
+    pub correspondences_disagreeing: usize,
+    pub correspondences_refined: usize,
+    pub coverage_of_lit_pixels: f64,
+    pub dot_spacing: u32,
+    pub dots_off_object: usize,
+    pub dots_predicted: usize,
+    pub dots_snapped: usize,
+    /// Camera channel response to each projector channel, relative (`[projector][camera]`).
+    pub leakage: Option<[[f64; 3]; 3]>,
+    pub lux: Option<LuxFigures>,
+    pub projector: usize,
+    pub refine_median_shift_px: f64,
+    pub vignetting_coefficient: Option<f64>,
+}
+
+/// A projector's lux-meter reading and the scale fitted to it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LuxFigures {
+    pub distance_mm: f64,
+    pub lux_at_1m: f64,
+    pub reading: f64,
+    pub reference_pixel: [u32; 2],
 }
 
 #[cfg(test)]
@@ -762,6 +823,11 @@ mod tests {
         for f in ["response_proj0.png", "footprint_proj0.png", "photometric.json"] {
             assert!(dir.path().join("report").join(f).exists(), "{f}");
         }
+        // The summary reads back as written, typed.
+        let text = std::fs::read_to_string(dir.path().join("report").join(PHOTOMETRIC_FILE)).unwrap();
+        let back: PhotometricSummary = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, report.summary());
+        assert_eq!(back.version, PHOTOMETRIC_VERSION);
     }
 
     #[test]

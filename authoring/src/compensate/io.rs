@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use image::RgbImage;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{Compensation, Params, Prepared, Stats};
 use crate::imgio::ImageError;
@@ -21,14 +21,56 @@ pub const CERTIFICATE_FILE: &str = "certificate.bin";
 /// The light model (`restage_shared::light::LightModel`, JSON): E_bound, margin, room light.
 pub const LIGHT_FILE: &str = "light.json";
 
-#[derive(Serialize)]
-struct Summary<'a> {
-    e_bound_lux: f64,
-    m: String,
-    margin: f64,
-    clip_fraction: f64,
-    certificate_reduction: u32,
-    stats: &'a Stats,
+/// Version of [`Summary`]; a reader refuses a newer one. Files written before the field
+/// existed read as version 1 (the same fields).
+pub const SUMMARY_VERSION: u32 = 1;
+
+/// `compensation.json`: the parameters a compensation ran with and its figures (read back by
+/// the window and by its bundle export).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Summary {
+    #[serde(default = "first_version")]
+    pub version: u32,
+    pub e_bound_lux: f64,
+    /// The smoothness exponent m as written on the command line (`8`, `inf`).
+    pub m: String,
+    pub margin: f64,
+    pub clip_fraction: f64,
+    pub certificate_reduction: u32,
+    pub stats: Stats,
+}
+
+fn first_version() -> u32 {
+    1
+}
+
+/// Why a `compensation.json` could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum SummaryError {
+    #[error("cannot read {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("{path} is not a compensation summary: {source}")]
+    Parse { path: PathBuf, source: serde_json::Error },
+    #[error(
+        "{path} is a version {version} compensation summary; this restage-author reads up to version {SUMMARY_VERSION}"
+    )]
+    Version { path: PathBuf, version: u32 },
+}
+
+impl Summary {
+    /// Reads `dir/compensation.json`.
+    pub fn load(dir: &Path) -> Result<Summary, SummaryError> {
+        let path = dir.join(SUMMARY_FILE);
+        let text = std::fs::read_to_string(&path)
+            .map_err(|source| SummaryError::Read { path: path.clone(), source })?;
+        let s: Summary = serde_json::from_str(&text)
+            .map_err(|source| SummaryError::Parse { path: path.clone(), source })?;
+        if s.version > SUMMARY_VERSION {
+            return Err(SummaryError::Version { path, version: s.version });
+        }
+        Ok(s)
+    }
 }
 
 /// Writes the frames, `compensation.json`, `certificate.bin` and `light.json` into `dir`
@@ -48,16 +90,17 @@ pub fn save(
         out.push(p);
     }
     let summary = Summary {
+        version: SUMMARY_VERSION,
         e_bound_lux: params.e_bound_lux,
         m: params.m.to_string(),
         margin: params.margin,
         clip_fraction: params.clip_fraction,
         certificate_reduction: params.reduction,
-        stats: &comp.stats,
+        stats: comp.stats.clone(),
     };
     let p = dir.join(SUMMARY_FILE);
-    std::fs::write(&p, serde_json::to_string_pretty(&summary).expect("summary serialises"))
-        .map_err(|e| io_err(&p, e))?;
+    let json = serde_json::to_string_pretty(&summary).map_err(|e| io_err(&p, e.into()))?;
+    std::fs::write(&p, json).map_err(|e| io_err(&p, e))?;
     out.push(p);
     let p = dir.join(CERTIFICATE_FILE);
     std::fs::write(&p, prep.certificate.to_shared().to_bytes()).map_err(|e| io_err(&p, e))?;
@@ -90,4 +133,44 @@ pub fn load_frames(dir: &Path, sizes: &[(u32, u32)]) -> Result<Vec<RgbImage>, Im
             Ok(img)
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, json: &str) {
+        std::fs::write(dir.join(SUMMARY_FILE), json).unwrap();
+    }
+
+    #[test]
+    fn the_summary_reads_back_and_refuses_what_it_does_not_know() {
+        let dir = tempfile::tempdir().unwrap();
+        let s = Summary {
+            version: SUMMARY_VERSION,
+            e_bound_lux: 150.0,
+            m: "8".into(),
+            margin: 0.05,
+            clip_fraction: 0.01,
+            certificate_reduction: 2,
+            stats: Stats { peak_lux: 139.5, covered_points: 10, ..Stats::default() },
+        };
+        let json = serde_json::to_string_pretty(&s).unwrap();
+        write(dir.path(), &json);
+        let back = Summary::load(dir.path()).unwrap();
+        assert_eq!((back.version, back.stats.peak_lux, back.m.as_str()), (1, 139.5, "8"));
+
+        // Written before the version field: version 1.
+        write(dir.path(), &json.replace("\"version\": 1,", ""));
+        assert_eq!(Summary::load(dir.path()).unwrap().version, 1);
+        // A newer version, a misspelt field and a missing file are refused by name.
+        write(dir.path(), &json.replace("\"version\": 1", "\"version\": 2"));
+        let e = Summary::load(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("version 2"), "{e}");
+        write(dir.path(), &json.replace("peak_lux", "peak_lx"));
+        let e = Summary::load(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("peak_lx") && e.contains("compensation.json"), "{e}");
+        std::fs::remove_file(dir.path().join(SUMMARY_FILE)).unwrap();
+        assert!(matches!(Summary::load(dir.path()), Err(SummaryError::Read { .. })));
+    }
 }

@@ -132,7 +132,8 @@ impl Params {
 }
 
 /// Figures about one compensation.
-#[derive(Clone, Debug, Default, serde::Serialize)]
+#[derive(Clone, Debug, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Stats {
     /// Object points lit by at least one projector and with a calibrated gain.
     pub covered_points: usize,

@@ -17,11 +17,12 @@ use restage_authoring::classify::PickRect;
 use restage_authoring::relight::Light;
 
 use super::GuiArgs;
+use super::doc::SceneFigures;
 use super::doc::{
     Doc, HintDiff, NO_HINT, RegionSpec, Scene, Small, Step, Steps, directional, light_angles, new_class,
 };
 use super::gpu::{GpuImage, Pictures, TileMask};
-use super::jobs::{Msg, Request, SceneFigures, Worker};
+use super::jobs::{Msg, Request, Worker};
 use super::project::{Opened, Problem, Project};
 use super::views::{ViewKind, ViewTransform};
 
@@ -1125,7 +1126,7 @@ impl App {
             ui.end_row();
         });
         if ui.button("make a new key").clicked() {
-            match super::export::new_key(
+            match super::project::new_key(
                 &self.project,
                 &format!("key-{}", crate::steps::now_unix_s().unwrap_or(0)),
             ) {

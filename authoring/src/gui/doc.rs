@@ -610,6 +610,30 @@ pub fn directional(az_deg: f64, el_deg: f64, strength: f64) -> Light {
     Light::Directional { direction: light_direction(az_deg, el_deg), colour: [strength; 3] }
 }
 
+/// A scene's light figures, from its `compensation.json`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SceneFigures {
+    pub peak_lux: f64,
+    pub limit_lux: f64,
+    pub e_bound_lux: f64,
+    pub scale: f64,
+    /// Fraction of the covered points whose target needed more light than the bound allows.
+    pub limited_by_bound: f64,
+}
+
+impl SceneFigures {
+    pub fn of(s: &restage_authoring::compensate::io::Summary) -> SceneFigures {
+        let t = &s.stats;
+        SceneFigures {
+            peak_lux: t.peak_lux,
+            limit_lux: t.limit_lux,
+            e_bound_lux: s.e_bound_lux,
+            scale: t.scale,
+            limited_by_bound: t.limited_by_bound as f64 / t.covered_points.max(1) as f64,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -10,8 +10,7 @@ use restage_authoring::export::{
     BundleDescription, LightDesc, ObjectDesc, PolicyDesc, ProjectorDesc, SceneDesc, policy_from,
 };
 
-use super::doc::{ExportSettings, Scene, Settings};
-use super::jobs::SceneFigures;
+use super::doc::{ExportSettings, Scene, SceneFigures, Settings};
 use super::project::Project;
 
 pub const DESCRIPTION_FILE: &str = "bundle.toml";
@@ -140,24 +139,7 @@ pub fn write_and_verify(project: &Project, settings: &Settings) -> Result<String
 
 /// The room light compensation counted (its `compensation.json`), lux.
 fn room_lux(project: &Project, scene: Scene) -> Result<f64> {
-    let path = project.comp_dir(scene).join(restage_authoring::compensate::io::SUMMARY_FILE);
-    let v: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?,
-    )
-    .with_context(|| format!("{} is not a compensation summary", path.display()))?;
-    v["stats"]["room_lux"].as_f64().with_context(|| format!("{}: no room_lux", path.display()))
-}
-
-/// A new signing key for the project: `keys/<name>.pem`, its public half also in `trust/`.
-pub fn new_key(project: &Project, name: &str) -> Result<(String, String)> {
-    let keys = project.path("keys");
-    let trust = project.path("trust");
-    std::fs::create_dir_all(&keys)?;
-    std::fs::create_dir_all(&trust)?;
-    let (_, _, public) = crate::steps::keygen::generate(&keys.join(name))?;
-    let name_pub = public.file_name().context("public key file name")?;
-    std::fs::copy(&public, trust.join(name_pub)).with_context(|| format!("copying {}", public.display()))?;
-    Ok((format!("keys/{name}.pem"), "trust".into()))
+    Ok(restage_authoring::compensate::io::Summary::load(&project.comp_dir(scene))?.stats.room_lux)
 }
 
 /// The brightest certificate peak among the chosen scenes.

@@ -19,7 +19,7 @@ use restage_authoring::restore::{self, HintMap, Region, Shape};
 use restage_authoring::stage_model::StageModel;
 use restage_authoring::stage_sim::{self, VirtualStage};
 
-use super::doc::{HintLayer, Scene, Small, Step, Steps};
+use super::doc::{HintLayer, Scene, SceneFigures, Small, Step, Steps};
 use super::project::{CLASSIFY_DIR, Project, RELIT_FILE, RESTORE_DIR};
 use super::views::ViewKind;
 use crate::steps::{self, StepCommand};
@@ -33,16 +33,6 @@ pub struct Request {
     pub hints: Arc<HintLayer>,
     /// The image pixels on screen `[x, y, w, h]`: a restoration runs there first.
     pub visible: Option<[u32; 4]>,
-}
-
-/// A scene's light figures, from its `compensation.json`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SceneFigures {
-    pub peak_lux: f64,
-    pub limit_lux: f64,
-    pub e_bound_lux: f64,
-    pub scale: f64,
-    pub limited_by_bound: f64,
 }
 
 /// What the worker reports.
@@ -402,8 +392,7 @@ impl Runner {
                 s => {
                     let scene = s.scene().expect("a compensation step");
                     let dir = p.comp_dir(scene);
-                    let json = dir.join(restage_authoring::compensate::io::SUMMARY_FILE);
-                    let figures = read_figures(&json)?;
+                    let figures = SceneFigures::of(&restage_authoring::compensate::io::Summary::load(&dir)?);
                     send(Msg::Figures { scene, figures });
                     let heat = dir.join("report").join("irradiance.png");
                     send(Msg::Image {
@@ -428,24 +417,6 @@ impl Runner {
             send(Msg::Unreadable { step, message: format!("{e:#}") });
         }
     }
-}
-
-fn read_figures(path: &Path) -> Result<SceneFigures> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let v: serde_json::Value = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not a compensation summary", path.display()))?;
-    let stats = &v["stats"];
-    let f = |v: &serde_json::Value, k: &str| {
-        v[k].as_f64().with_context(|| format!("{}: no number '{k}'", path.display()))
-    };
-    let covered = f(stats, "covered_points")?.max(1.0);
-    Ok(SceneFigures {
-        peak_lux: f(stats, "peak_lux")?,
-        limit_lux: f(stats, "limit_lux")?,
-        e_bound_lux: f(&v, "e_bound_lux")?,
-        scale: f(stats, "scale")?,
-        limited_by_bound: f(stats, "limited_by_bound")? / covered,
-    })
 }
 
 fn load_rgba(path: &Path) -> Result<RgbaImage> {

@@ -567,7 +567,7 @@ impl Project {
             unreadable: vec![],
             hints_written: None,
         };
-        let (key, trust) = super::export::new_key(&project, "project")?;
+        let (key, trust) = new_key(&project, "project")?;
         settings.export.key = key;
         settings.export.trust = trust;
         project.photo_size = (scene.camera[0], scene.camera[1]);
@@ -634,6 +634,18 @@ impl Project {
 
 /// The folder of a new project, created if needed; one that already holds a project is
 /// refused rather than written over.
+/// A new signing key for the project: `keys/<name>.pem`, its public half also in `trust/`.
+pub fn new_key(project: &Project, name: &str) -> Result<(String, String)> {
+    let keys = project.path("keys");
+    let trust = project.path("trust");
+    std::fs::create_dir_all(&keys)?;
+    std::fs::create_dir_all(&trust)?;
+    let (_, _, public) = crate::steps::keygen::generate(&keys.join(name))?;
+    let name_pub = public.file_name().context("public key file name")?;
+    std::fs::copy(&public, trust.join(name_pub)).with_context(|| format!("copying {}", public.display()))?;
+    Ok((format!("keys/{name}.pem"), "trust".into()))
+}
+
 fn new_project_dir(dir: &Path) -> Result<PathBuf> {
     std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     let dir = std::fs::canonicalize(dir)?;
