@@ -36,6 +36,14 @@ fn mat_vec(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+/// Rec. 709 luma weights of linear R, G, B: relative luminance is their weighted sum.
+pub const REC709_LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// Relative luminance of a linear RGB triple (Rec. 709 weights).
+pub fn luminance(rgb: [f64; 3]) -> f64 {
+    REC709_LUMA[0] * rgb[0] + REC709_LUMA[1] * rgb[1] + REC709_LUMA[2] * rgb[2]
+}
+
 /// Linear sRGB (0..=1) to CIE XYZ (Y = 1 at full scale white).
 pub fn linear_srgb_to_xyz(rgb: [f64; 3]) -> [f64; 3] {
     mat_vec(&SRGB_TO_XYZ, rgb)

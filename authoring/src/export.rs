@@ -44,9 +44,7 @@
 use std::path::{Path, PathBuf};
 
 use restage_shared::bundle::{BundleInfo, BundleWriter, ObjectInfo, PixelFormat, Projector, SceneKind};
-use restage_shared::light::{
-    LightCertificate, LightModel, LuxWeighting, ProjectorLight, RESPONSE_LEVELS, xrgb_from_rgb,
-};
+use restage_shared::light::{LightCertificate, LightModel, LuxWeighting, RESPONSE_LEVELS, xrgb_from_rgb};
 use restage_shared::policy::{ExposurePolicy, IdleMode, Sensitivity};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -218,16 +216,13 @@ pub fn policy_from(desc: &PolicyDesc) -> Result<ExposurePolicy, String> {
 /// The manifest's light model from the calibrated stage.
 pub fn light_model_from(stage: &StageModel, desc: &LightDesc) -> LightModel {
     LightModel {
-        projectors: stage
-            .projectors
-            .iter()
-            .map(|p| ProjectorLight { response: p.response.clone(), black: p.black, lux_at_1m: p.lux_at_1m })
-            .collect(),
         weighting: desc.lux_shares.map_or(LuxWeighting::MaxChannel, LuxWeighting::Shares),
-        e_bound_lux: desc.e_bound_lux,
-        safety_margin: desc.safety_margin,
-        ambient_lux: desc.ambient_lux,
-        lux_meter: vec![],
+        ..crate::compensate::certificate::light_model(
+            stage,
+            desc.e_bound_lux,
+            desc.safety_margin,
+            desc.ambient_lux,
+        )
     }
 }
 

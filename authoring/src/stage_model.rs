@@ -99,6 +99,14 @@ pub struct StageModel {
     pub provenance: String,
 }
 
+impl ProjectorModel {
+    /// The centre of projection (the lens) in the camera frame, mm: `C = -R^T t`.
+    pub fn centre(&self) -> [f64; 3] {
+        let (r, t) = (&self.rotation, &self.translation);
+        std::array::from_fn(|j| -(r[0][j] * t[0] + r[1][j] * t[1] + r[2][j] * t[2]))
+    }
+}
+
 impl StageModel {
     pub fn pixel_count(&self) -> usize {
         self.camera.width as usize * self.camera.height as usize
@@ -198,6 +206,42 @@ mod tests {
             ambient: vec![[0.0; 3]; 2],
             provenance: "test".into(),
         }
+    }
+
+    /// The model frozen in `tests/fixtures/stage-v1/stage.bin`: [`tiny`] with every optional
+    /// part filled (transport, vignetting).
+    fn fixture() -> StageModel {
+        let mut m = tiny();
+        m.provenance = "frozen fixture, stage.bin version 1".into();
+        m.projectors[0].vignetting = (0..12).map(|i| 1.0 - 0.01 * i as f32).collect();
+        let mut row_start = vec![0u32; 13];
+        row_start[5..].fill(1);
+        m.transport = vec![Transport { row_start, camera_pixel: vec![0], weight: vec![0.75] }];
+        m
+    }
+
+    /// A stage model written by version 1 of the format keeps reading as the same model; a
+    /// later format needs a new fixture beside this one (docs/formats.md).
+    /// `RESTAGE_WRITE_FIXTURES=1` writes the fixture again (only ever for a new version).
+    #[test]
+    fn the_frozen_version_1_stage_model_still_reads() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/stage-v1");
+        if std::env::var_os("RESTAGE_WRITE_FIXTURES").is_some() {
+            fixture().save(&dir).unwrap();
+        }
+        let loaded = StageModel::load(&dir).unwrap();
+        // Debug, not PartialEq: NaN marks pixels without surface.
+        assert_eq!(format!("{loaded:?}"), format!("{:?}", fixture()));
+        let bytes = std::fs::read(dir.join(STAGE_FILE)).unwrap();
+        assert_eq!(&bytes[8..12], &1u32.to_le_bytes(), "the fixture is version 1");
+
+        // A newer version is refused by name, not misread.
+        let tmp = tempfile::tempdir().unwrap();
+        let mut newer = bytes.clone();
+        newer[8..12].copy_from_slice(&2u32.to_le_bytes());
+        std::fs::write(tmp.path().join(STAGE_FILE), newer).unwrap();
+        let e = StageModel::load(tmp.path()).unwrap_err().to_string();
+        assert!(e.contains("version 2"), "{e}");
     }
 
     #[test]

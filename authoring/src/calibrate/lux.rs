@@ -151,7 +151,7 @@ pub fn apply_lux(model: &mut StageModel, readings: &LuxReadings) -> Result<Vec<L
             0.0
         } else {
             let b = model.projectors[k].black;
-            0.2126 * b[0] as f64 + 0.7152 * b[1] as f64 + 0.0722 * b[2] as f64
+            crate::color::luminance(b.map(f64::from))
         };
         let lux_at_1m = fit.lux_at_1m / (1.0 + black);
         model.projectors[k].lux_at_1m = lux_at_1m;
@@ -164,8 +164,7 @@ fn fit_one(model: &StageModel, k: usize, lux: f64, readings: &LuxReadings) -> Re
     let (w, h) = (model.camera.width, model.camera.height);
     let p = &model.projectors[k];
     let corr = &model.correspondences[k];
-    let (r, t) = (&p.rotation, &p.translation);
-    let centre: [f64; 3] = std::array::from_fn(|j| -(r[0][j] * t[0] + r[1][j] * t[1] + r[2][j] * t[2]));
+    let centre = p.centre();
     // Distance and cosine at camera pixel i, if the projector lights a known surface point there.
     let geometry = |i: usize| -> Option<(f64, f64)> {
         let (x, n) = (model.points[i], model.normals[i]);

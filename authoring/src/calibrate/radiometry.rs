@@ -407,9 +407,7 @@ pub fn full_irradiance(model: &StageModel, k: usize, i: usize) -> Option<f64> {
     if !(u[0].is_finite() && x[0].is_finite() && n[0].is_finite()) {
         return None;
     }
-    // Projector centre in the camera frame: C = -R^T t.
-    let (r, t) = (&p.rotation, &p.translation);
-    let centre: [f64; 3] = std::array::from_fn(|j| -(r[0][j] * t[0] + r[1][j] * t[1] + r[2][j] * t[2]));
+    let centre = p.centre();
     let to: [f64; 3] = std::array::from_fn(|j| centre[j] - x[j] as f64);
     let d = (to[0] * to[0] + to[1] * to[1] + to[2] * to[2]).sqrt();
     let cos = (n[0] as f64 * to[0] + n[1] as f64 * to[1] + n[2] as f64 * to[2]) / d;

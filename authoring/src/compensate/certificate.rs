@@ -22,36 +22,24 @@ use restage_shared::light::{
 use super::geometry::Geometry;
 use crate::stage_model::StageModel;
 
-/// A rectangle `[x0, x1) x [y0, y1)` of projector pixels and its coefficient (lux per unit
-/// of relative output). Empty (`x0 >= x1`) means the projector does not reach the point.
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct Block {
-    pub x0: u16,
-    pub y0: u16,
-    pub x1: u16,
-    pub y1: u16,
-    pub lux_per_unit: f32,
-}
+/// A point's block of projector pixels and its coefficient: the bundle's own
+/// [`Footprint`] (`x0 >= x1` means the projector does not reach the point).
+pub type Block = Footprint;
 
-impl Block {
-    pub fn is_empty(&self) -> bool {
-        self.x0 >= self.x1 || self.y0 >= self.y1
+/// Grows `b` to include `[x0, x1) x [y0, y1)`, clipped to a `w` x `h` projector.
+fn include(b: &mut Block, x0: i64, y0: i64, x1: i64, y1: i64, w: u32, h: u32) {
+    let (x0, y0) = (x0.clamp(0, w as i64) as u16, y0.clamp(0, h as i64) as u16);
+    let (x1, y1) = (x1.clamp(0, w as i64) as u16, y1.clamp(0, h as i64) as u16);
+    if x0 >= x1 || y0 >= y1 {
+        return;
     }
-
-    fn include(&mut self, x0: i64, y0: i64, x1: i64, y1: i64, w: u32, h: u32) {
-        let (x0, y0) = (x0.clamp(0, w as i64) as u16, y0.clamp(0, h as i64) as u16);
-        let (x1, y1) = (x1.clamp(0, w as i64) as u16, y1.clamp(0, h as i64) as u16);
-        if x0 >= x1 || y0 >= y1 {
-            return;
-        }
-        if self.is_empty() {
-            (self.x0, self.y0, self.x1, self.y1) = (x0, y0, x1, y1);
-        } else {
-            self.x0 = self.x0.min(x0);
-            self.y0 = self.y0.min(y0);
-            self.x1 = self.x1.max(x1);
-            self.y1 = self.y1.max(y1);
-        }
+    if b.is_empty() {
+        (b.x0, b.y0, b.x1, b.y1) = (x0, y0, x1, y1);
+    } else {
+        b.x0 = b.x0.min(x0);
+        b.y0 = b.y0.min(y0);
+        b.x1 = b.x1.max(x1);
+        b.y1 = b.y1.max(y1);
     }
 }
 
@@ -92,7 +80,7 @@ fn pixel_blocks(stage: &StageModel, geom: &Geometry, k: usize) -> Vec<Block> {
                 let hf = geom.half[i * kn + k];
                 let lo = |v: f32, h: f32| (v - h - 0.5).ceil() as i64 - 1;
                 let hi = |v: f32, h: f32| (v + h + 0.5).floor() as i64 + 2;
-                b.include(lo(c[0], hf[0]), lo(c[1], hf[1]), hi(c[0], hf[0]), hi(c[1], hf[1]), w, h);
+                include(&mut b, lo(c[0], hf[0]), lo(c[1], hf[1]), hi(c[0], hf[0]), hi(c[1], hf[1]), w, h);
             }
             b
         })
@@ -104,7 +92,7 @@ fn pixel_blocks(stage: &StageModel, geom: &Geometry, k: usize) -> Vec<Block> {
             for e in t.row_start[px] as usize..t.row_start[px + 1] as usize {
                 let j = t.camera_pixel[e] as usize;
                 if j < geom.points && t.weight[e] > 0.0 && geom.eta[j * kn + k] > 0.0 {
-                    blocks[j].include(x, y, x + 1, y + 1, w, h);
+                    include(&mut blocks[j], x, y, x + 1, y + 1, w, h);
                 }
             }
         }
@@ -146,7 +134,8 @@ pub fn build(stage: &StageModel, geom: &Geometry, reduction: u32, ambient_lux: f
                             let i = y * cw + x;
                             let pb = per_pixel[k][i];
                             if !pb.is_empty() {
-                                b.include(
+                                include(
+                                    &mut b,
                                     pb.x0 as i64,
                                     pb.y0 as i64,
                                     pb.x1 as i64,
@@ -175,25 +164,19 @@ pub fn build(stage: &StageModel, geom: &Geometry, reduction: u32, ambient_lux: f
 impl Certificate {
     /// The certificate in the bundle's format (`restage_shared::light`).
     pub fn to_shared(&self) -> LightCertificate {
+        self.shared_range(0, self.points())
+    }
+
+    /// Points `a..b` of the certificate in the bundle's format.
+    fn shared_range(&self, a: usize, b: usize) -> LightCertificate {
         LightCertificate {
-            points: self.points() as u32,
-            point_px: self.point_px.clone(),
-            projectors: self
-                .projectors
-                .iter()
+            points: (b - a) as u32,
+            point_px: self.point_px[a..b].to_vec(),
+            projectors: (self.projectors.iter())
                 .map(|(w, h, blocks)| CertificateMap {
                     width: *w,
                     height: *h,
-                    footprints: blocks
-                        .iter()
-                        .map(|b| Footprint {
-                            x0: b.x0,
-                            y0: b.y0,
-                            x1: b.x1,
-                            y1: b.y1,
-                            lux_per_unit: b.lux_per_unit,
-                        })
-                        .collect(),
+                    footprints: blocks[a..b].to_vec(),
                 })
                 .collect(),
         }
@@ -215,28 +198,7 @@ impl Certificate {
             .step_by(step)
             .map(|a| {
                 let b = (a + step).min(n);
-                let part = LightCertificate {
-                    points: (b - a) as u32,
-                    point_px: self.point_px[a..b].to_vec(),
-                    projectors: self
-                        .projectors
-                        .iter()
-                        .map(|(w, h, blocks)| CertificateMap {
-                            width: *w,
-                            height: *h,
-                            footprints: blocks[a..b]
-                                .iter()
-                                .map(|b| Footprint {
-                                    x0: b.x0,
-                                    y0: b.y0,
-                                    x1: b.x1,
-                                    y1: b.y1,
-                                    lux_per_unit: b.lux_per_unit,
-                                })
-                                .collect(),
-                        })
-                        .collect(),
-                };
+                let part = self.shared_range(a, b);
                 (a as u32, part)
             })
             .collect()

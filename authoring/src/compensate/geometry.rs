@@ -36,7 +36,7 @@ impl Geometry {
     pub fn new(stage: &StageModel) -> Self {
         let n = stage.pixel_count();
         let kn = stage.projectors.len();
-        let centres: Vec<[f64; 3]> = stage.projectors.iter().map(centre).collect();
+        let centres: Vec<[f64; 3]> = stage.projectors.iter().map(ProjectorModel::centre).collect();
         let mut l = vec![0.0f32; n * kn];
         let mut eta = vec![0.0f32; n * kn];
         let mut coord = vec![[f32::NAN; 2]; n * kn];
@@ -109,16 +109,6 @@ fn footprint_half_extents(coord: &[[f32; 2]], kn: usize, w: usize) -> Vec<[f32; 
         .collect()
 }
 
-/// A projector's centre of projection in the camera frame: `C = -R^T t`.
-pub fn centre(p: &ProjectorModel) -> [f64; 3] {
-    let (r, t) = (&p.rotation, &p.translation);
-    let mut c = [0.0; 3];
-    for (j, cj) in c.iter_mut().enumerate() {
-        *cj = -(r[0][j] * t[0] + r[1][j] * t[1] + r[2][j] * t[2]);
-    }
-    c
-}
-
 /// Relative output of the projector pixel nearest to `c` (1 when not measured).
 pub fn vignetting(p: &ProjectorModel, c: [f32; 2]) -> f64 {
     if p.vignetting.is_empty() {
@@ -139,7 +129,7 @@ mod tests {
         let s: SyntheticStage = synthetic_stage(1, 3);
         let g = Geometry::new(&s.model);
         let p = &s.model.projectors[0];
-        let c = centre(p);
+        let c = p.centre();
         // Check every covered point against a direct evaluation of the formulas.
         let mut checked = 0;
         for i in 0..g.points {

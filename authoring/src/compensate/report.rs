@@ -216,7 +216,7 @@ mod tests {
 
     #[test]
     fn heat_ramp_is_monotonic_in_brightness() {
-        let lum = |c: [u8; 3]| 0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64;
+        let lum = |c: [u8; 3]| crate::color::luminance(c.map(f64::from));
         let mut last = -1.0;
         for i in 0..=100 {
             let l = lum(heat(i as f64 / 100.0));

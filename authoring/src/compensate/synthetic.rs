@@ -7,7 +7,6 @@ use image::RgbImage;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::geometry::centre;
 use crate::capture_set::CameraIntrinsics;
 use crate::stage_model::{ProjectorModel, StageModel, Transport};
 
@@ -181,7 +180,7 @@ pub fn build(spec: &SyntheticSpec) -> SyntheticStage {
             };
             for k in 0..kn {
                 let pr = &projectors[k];
-                let cc = centre(pr);
+                let cc = pr.centre();
                 if dot(nrm, [cc[0] - p[0], cc[1] - p[1], cc[2] - p[2]]) <= 0.0 {
                     continue;
                 }
@@ -236,7 +235,7 @@ impl SyntheticStage {
         let p = &self.model.projectors[k];
         let x = self.model.points[i].map(f64::from);
         let n = self.model.normals[i].map(f64::from);
-        let cc = centre(p);
+        let cc = p.centre();
         let d = [cc[0] - x[0], cc[1] - x[1], cc[2] - x[2]];
         let dist = dot(d, d).sqrt();
         let cos = dot(n, d) / dist;

@@ -137,7 +137,7 @@ pub fn weight_roughness(comp: &Compensation, width: u32) -> f64 {
 /// (`lux_at_1m`) times the summed relative output of its pixels, luminance-weighted
 /// (Rec. 709 weights over the channels' responses). Proportional to emitted lumens.
 pub fn emitted_light(model: &StageModel, frames: &[RgbImage]) -> f64 {
-    const Y: [f64; 3] = [0.2126, 0.7152, 0.0722];
+    const Y: [f64; 3] = crate::color::REC709_LUMA;
     model
         .projectors
         .iter()
@@ -158,7 +158,7 @@ pub fn mean_luminance(comp: &Compensation, view: &[[f32; 3]]) -> f64 {
     let (mut sum, mut count) = (0.0, 0usize);
     for (i, v) in view.iter().enumerate() {
         if comp.weights[i * kn..(i + 1) * kn].iter().any(|&w| w > 0.0) {
-            sum += 0.2126 * v[0] as f64 + 0.7152 * v[1] as f64 + 0.0722 * v[2] as f64;
+            sum += crate::color::luminance(v.map(f64::from));
             count += 1;
         }
     }

@@ -14,7 +14,7 @@ fn rotation(p: &ProjectorModel) -> Matrix3<f64> {
 }
 
 fn centre(p: &ProjectorModel) -> Vector3<f64> {
-    -rotation(p).transpose() * Vector3::from(p.translation)
+    Vector3::from(p.centre())
 }
 
 fn percentile(v: &mut [f64], q: f64) -> f64 {

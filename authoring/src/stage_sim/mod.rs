@@ -455,7 +455,7 @@ impl VirtualStage {
             } else {
                 self.black_lux[k][i]
             };
-            let y = 0.2126 * e[0] as f64 + 0.7152 * e[1] as f64 + 0.0722 * e[2] as f64;
+            let y = crate::color::luminance(e.map(f64::from));
             reading += y / cos_surface * sensor.dot(&dir(k)).max(0.0);
         }
         Ok(reading)
