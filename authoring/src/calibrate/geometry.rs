@@ -12,10 +12,10 @@ use std::path::Path;
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use super::CalibrateError;
 use super::decode::{self, CaptureImages, DecodeParams, DecodeQuality, ProjectorDecode};
 use super::selfcal::{self, Conditioning, KnownLength, ProjectorObservations, SelfCalParams, SelfCalResult};
 use super::triangulate::{self, DenseGeometry, TriangulateParams};
+use super::{CalibrateError, SolverError};
 use crate::capture_set::CaptureManifest;
 use crate::stage_model::{ProjectorModel, StageModel, Transport};
 
@@ -142,7 +142,7 @@ pub fn solve_geometry(
             manifest.source
         ),
     };
-    model.validate().map_err(|e| CalibrateError::Solver(e.to_string()))?;
+    model.validate().map_err(SolverError::Model)?;
     let report = GeometryReport {
         decode: decodes.iter().map(|d| d.quality.clone()).collect(),
         adjustment_rms_px: cal.rms_px,

@@ -20,6 +20,53 @@ use thiserror::Error;
 use crate::capture_set::CaptureSetError;
 use crate::imgio::ImageError;
 
+/// Why self-calibration cannot determine the stage from these correspondences: the scene or
+/// the view, not the software, is at fault, and the message says what to change.
+#[derive(Debug, Error)]
+pub enum IllPosed {
+    #[error(
+        "projector {projector} has only {sampled} sampled correspondences (needs >= 50): does it see the object?"
+    )]
+    TooFewCorrespondences { projector: usize, sampled: usize },
+    #[error(
+        "projector {projector}: {percent:.1} % of its correspondences fit one homography within \
+         {threshold_px} px, so the scene is (nearly) planar and focal length, lens shift and pose \
+         cannot be separated; calibrate with a non-planar object in view"
+    )]
+    Planar { projector: usize, percent: f64, threshold_px: f64 },
+    #[error(
+        "projector {projector} shares too few lit surface points with the others to put it in the same scale"
+    )]
+    NoCommonScale { projector: usize },
+    #[error(
+        "projector {projector}: the correspondences do not determine its intrinsics (f = {f:.1} +- \
+         {f_std:.1} px, cx = {cx:.1} +- {cx_std:.1} px, cy = {cy:.1} +- {cy_std:.1} px; a homography \
+         explains {homography_percent:.0} % of them): the scene is too flat or too small; calibrate \
+         with a larger non-planar object in view"
+    )]
+    Undetermined {
+        projector: usize,
+        f: f64,
+        f_std: f64,
+        cx: f64,
+        cx_std: f64,
+        cy: f64,
+        cy_std: f64,
+        homography_percent: f64,
+    },
+}
+
+/// A self-calibration that could not run to its end on inputs it should handle.
+#[derive(Debug, Error)]
+pub enum SolverError {
+    #[error("projector {projector}: correspondence map has {got} entries, expected {want}")]
+    MapSize { projector: usize, got: usize, want: usize },
+    #[error("projector {projector}: essential-matrix decomposition failed")]
+    Decomposition { projector: usize },
+    #[error("the solved stage model is inconsistent: {0}")]
+    Model(#[from] crate::stage_model::StageModelError),
+}
+
 /// Everything that can stop a calibration step.
 #[derive(Debug, Error)]
 pub enum CalibrateError {
@@ -37,9 +84,9 @@ pub enum CalibrateError {
     )]
     NoContrast { projector: u32, lit: usize, pixels: usize, threshold: f32 },
     #[error("self-calibration is ill-posed: {0}")]
-    IllPosed(String),
+    IllPosed(#[from] IllPosed),
     #[error("self-calibration failed: {0}")]
-    Solver(String),
+    Solver(#[from] SolverError),
     #[error("known length: {0}")]
     KnownLength(String),
     #[error("cannot write {path}: {source}")]

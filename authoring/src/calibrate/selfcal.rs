@@ -15,7 +15,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use super::CalibrateError;
+use super::{CalibrateError, IllPosed, SolverError};
 use crate::capture_set::CameraIntrinsics;
 
 /// One projector's correspondences: per camera pixel (row-major) the projector coordinate
@@ -510,19 +510,67 @@ fn step(geo: &[ProjectorGeometry], delta: &DVector<f64>) -> Vec<ProjectorGeometr
         .collect()
 }
 
-/// Self-calibrates every projector jointly from dense correspondences.
+/// Self-calibrates every projector jointly from dense correspondences, in named stages:
+/// subsample the correspondences, initialise each projector from its epipolar geometry
+/// (refusing a planar scene), bring all projectors into one scale, adjust everything jointly,
+/// then measure how well the data determine each projector.
 pub fn self_calibrate(
     cam: &CameraIntrinsics,
     projectors: &[ProjectorObservations],
     params: &SelfCalParams,
 ) -> Result<SelfCalResult, CalibrateError> {
+    let samples = subsample(cam, projectors, params)?;
+    let mut warnings = Vec::new();
+    let (mut geo, homography_fraction) = initialise_all(cam, projectors, &samples, params, &mut warnings)?;
+    common_scale(&mut geo, &samples)?;
+    let z = initial_depths(&geo, &samples);
+    if projectors.len() == 1 {
+        warnings.push(
+            "one projector: its horizontal principal point comes from the centred-lens-shift prior, \
+             not from the data (a calibrated camera and one projector do not determine f, cx and cy)"
+                .into(),
+        );
+    }
+    let problem = Problem {
+        samples: &samples,
+        cx_prior: geo
+            .iter()
+            .map(|g| ((g.width as f64 - 1.0) / 2.0, params.cx_prior_sigma * g.width as f64))
+            .collect(),
+        huber: params.huber_px,
+    };
+    let (geo, z, iterations) = adjust(&problem, geo, z, params);
+    let fit = fit_statistics(&problem, &geo, &z, params);
+    let conditioning = conditioning(&problem, &geo, &z, fit.sigma2, &homography_fraction);
+    check_conditioning(&geo, &conditioning, &mut warnings)?;
+    for (k, (n, s2)) in fit.per_projector.iter().enumerate() {
+        tracing::info!(
+            "projector {k}: {n} inlier observations, RMS {:.3} px",
+            (s2 / (*n).max(1) as f64).sqrt()
+        );
+    }
+    Ok(SelfCalResult {
+        projectors: geo,
+        rms_px: fit.rms_px,
+        observations: fit.observations,
+        inliers: fit.inliers,
+        iterations,
+        conditioning,
+        warnings,
+    })
+}
+
+/// Stage 1: a regular subsample of the decoded camera pixels (every `stride`-th pixel on both
+/// axes, about `params.max_points` of them), each with its ray and what every projector saw.
+fn subsample(
+    cam: &CameraIntrinsics,
+    projectors: &[ProjectorObservations],
+    params: &SelfCalParams,
+) -> Result<Vec<Sample>, CalibrateError> {
     let pixels = cam.width as usize * cam.height as usize;
     for (k, p) in projectors.iter().enumerate() {
         if p.map.len() != pixels {
-            return Err(CalibrateError::Solver(format!(
-                "projector {k}: correspondence map has {} entries, expected {pixels}",
-                p.map.len()
-            )));
+            return Err(SolverError::MapSize { projector: k, got: p.map.len(), want: pixels }.into());
         }
     }
     let valid = |k: usize, i: usize| {
@@ -530,8 +578,6 @@ pub fn self_calibrate(
         m[0].is_finite() && m[1].is_finite()
     };
     let decoded = (0..pixels).filter(|&i| (0..projectors.len()).any(|k| valid(k, i))).count();
-    let mut warnings = Vec::new();
-    // Regular subsample: every `stride`-th pixel on both axes.
     let stride = ((decoded as f64 / params.max_points as f64).sqrt().floor() as usize).max(1);
     let mut samples = Vec::new();
     for v in (stride / 2..cam.height as usize).step_by(stride) {
@@ -546,6 +592,19 @@ pub fn self_calibrate(
             }
         }
     }
+    Ok(samples)
+}
+
+/// Stage 2: each projector's initial geometry (unit baseline) from a RANSAC fundamental
+/// matrix; refuses a projector that sees too little or a (nearly) planar scene. Returns the
+/// geometries and, per projector, the fraction of inliers one homography explains.
+fn initialise_all(
+    cam: &CameraIntrinsics,
+    projectors: &[ProjectorObservations],
+    samples: &[Sample],
+    params: &SelfCalParams,
+    warnings: &mut Vec<String>,
+) -> Result<(Vec<ProjectorGeometry>, Vec<f64>), CalibrateError> {
     let mut rng = ChaCha8Rng::seed_from_u64(params.seed);
     let mut geo = Vec::new();
     let mut homography_fraction = Vec::new();
@@ -561,10 +620,7 @@ pub fn self_calibrate(
             })
             .unzip();
         if cpx.len() < 50 {
-            return Err(CalibrateError::IllPosed(format!(
-                "projector {k} has only {} sampled correspondences (needs >= 50): does it see the object?",
-                cpx.len()
-            )));
+            return Err(IllPosed::TooFewCorrespondences { projector: k, sampled: cpx.len() }.into());
         }
         let th = params.ransac_threshold_px;
         let iterations = params.ransac_iterations;
@@ -582,12 +638,7 @@ pub fn self_calibrate(
             100.0 * frac
         );
         if frac >= params.planar_fraction {
-            return Err(CalibrateError::IllPosed(format!(
-                "projector {k}: {:.1} % of its correspondences fit one homography within {th} px, so \
-                 the scene is (nearly) planar and focal length, lens shift and pose cannot be \
-                 separated; calibrate with a non-planar object in view",
-                100.0 * frac
-            )));
+            return Err(IllPosed::Planar { projector: k, percent: 100.0 * frac, threshold_px: th }.into());
         }
         if (n_in as f64) < 0.5 * cpx.len() as f64 {
             warnings.push(format!(
@@ -595,19 +646,25 @@ pub fn self_calibrate(
                 cpx.len()
             ));
         }
-        let g = initialise(cam, p.width, p.height, &cpx, &ppx, &inl, &f_mat).ok_or_else(|| {
-            CalibrateError::Solver(format!("projector {k}: essential-matrix decomposition failed"))
-        })?;
+        let g = initialise(cam, p.width, p.height, &cpx, &ppx, &inl, &f_mat)
+            .ok_or(SolverError::Decomposition { projector: k })?;
         tracing::debug!("projector {k}: initial f {:.1} cy {:.1}", g.f, g.cy);
         geo.push(g);
     }
-    // Relative scale: chain depths of shared points from projector 0 outwards.
-    let depth = |g: &ProjectorGeometry, s: &Sample, k: usize| {
-        s.obs.iter().find(|o| o.0 == k).map(|o| {
-            let xp = Vector3::new((o.1[0] - g.cx) / g.f, (o.1[1] - g.cy) / g.f, 1.0);
-            depth_from(&g.rotation, &g.translation, &s.ray, &xp)
-        })
-    };
+    Ok((geo, homography_fraction))
+}
+
+/// Depth along a sample's ray of what projector `k` saw there, by its geometry `g`.
+fn depth(g: &ProjectorGeometry, s: &Sample, k: usize) -> Option<f64> {
+    s.obs.iter().find(|o| o.0 == k).map(|o| {
+        let xp = Vector3::new((o.1[0] - g.cx) / g.f, (o.1[1] - g.cy) / g.f, 1.0);
+        depth_from(&g.rotation, &g.translation, &s.ray, &xp)
+    })
+}
+
+/// Stage 3: one scale for all projectors, chaining the depths of shared points from
+/// projector 0 outwards.
+fn common_scale(geo: &mut [ProjectorGeometry], samples: &[Sample]) -> Result<(), CalibrateError> {
     let mut scaled = vec![false; geo.len()];
     scaled[0] = true;
     for _ in 0..geo.len() {
@@ -616,7 +673,7 @@ pub fn self_calibrate(
                 continue;
             }
             let mut ratios: Vec<f64> = Vec::new();
-            for s in &samples {
+            for s in samples {
                 let Some(zk) = depth(&geo[k], s, k) else { continue };
                 let refs: Vec<f64> =
                     (0..geo.len()).filter(|&j| scaled[j]).filter_map(|j| depth(&geo[j], s, j)).collect();
@@ -635,12 +692,16 @@ pub fn self_calibrate(
             }
         }
     }
-    if let Some(k) = scaled.iter().position(|s| !s) {
-        return Err(CalibrateError::IllPosed(format!(
-            "projector {k} shares too few lit surface points with the others to put it in the same scale"
-        )));
+    match scaled.iter().position(|s| !s) {
+        Some(k) => Err(IllPosed::NoCommonScale { projector: k }.into()),
+        None => Ok(()),
     }
-    let mut z: Vec<f64> = samples
+}
+
+/// Stage 4: each sample's starting depth, the median over the projectors that saw it (1 when
+/// none gives a positive depth).
+fn initial_depths(geo: &[ProjectorGeometry], samples: &[Sample]) -> Vec<f64> {
+    samples
         .iter()
         .map(|s| {
             let mut d: Vec<f64> =
@@ -652,22 +713,18 @@ pub fn self_calibrate(
                 d[d.len() / 2]
             }
         })
-        .collect();
-    if projectors.len() == 1 {
-        warnings.push(
-            "one projector: its horizontal principal point comes from the centred-lens-shift prior, \
-             not from the data (a calibrated camera and one projector do not determine f, cx and cy)"
-                .into(),
-        );
-    }
-    let problem = Problem {
-        samples: &samples,
-        cx_prior: geo
-            .iter()
-            .map(|g| ((g.width as f64 - 1.0) / 2.0, params.cx_prior_sigma * g.width as f64))
-            .collect(),
-        huber: params.huber_px,
-    };
+        .collect()
+}
+
+/// Stage 5: Levenberg-Marquardt over every projector's parameters and every sample's depth
+/// (the depths eliminated by their Schur complement). Returns the adjusted geometry and depths
+/// and the iterations run.
+fn adjust(
+    problem: &Problem,
+    mut geo: Vec<ProjectorGeometry>,
+    mut z: Vec<f64>,
+    params: &SelfCalParams,
+) -> (Vec<ProjectorGeometry>, Vec<f64>, usize) {
     let mut cost = problem.cost(&geo, &z);
     let mut lambda = 1e-3;
     let mut iterations = 0;
@@ -713,10 +770,31 @@ pub fn self_calibrate(
             }
         }
     }
-    // Statistics and conditioning.
+    (geo, z, iterations)
+}
+
+/// How well the adjusted model fits its observations.
+struct FitStatistics {
+    observations: usize,
+    /// Observations within three Huber widths.
+    inliers: usize,
+    rms_px: f64,
+    /// Variance per residual component of the inliers, px² (floored).
+    sigma2: f64,
+    /// Per projector: inlier observations and their sum of squared residuals.
+    per_projector: Vec<(usize, f64)>,
+}
+
+/// Stage 6: residual statistics of the adjusted model.
+fn fit_statistics(
+    problem: &Problem,
+    geo: &[ProjectorGeometry],
+    z: &[f64],
+    params: &SelfCalParams,
+) -> FitStatistics {
     let (mut n_obs, mut n_in, mut sum2) = (0, 0, 0.0);
     let mut per_sum = vec![(0usize, 0.0f64); geo.len()];
-    for (s, &zi) in samples.iter().zip(&z) {
+    for (s, &zi) in problem.samples.iter().zip(z) {
         for &(k, o) in &s.obs {
             n_obs += 1;
             if let Some((r, _, _)) = residual(&geo[k], &s.ray, zi, o) {
@@ -730,10 +808,26 @@ pub fn self_calibrate(
             }
         }
     }
-    let rms = (sum2 / n_in.max(1) as f64).sqrt();
-    let sigma2 = (sum2 / (2 * n_in).max(1) as f64).max(1e-8);
-    let (s_prior, _, _) = problem.normal_equations(&geo, &z, 0.0, true);
-    let (s_data, _, _) = problem.normal_equations(&geo, &z, 0.0, false);
+    FitStatistics {
+        observations: n_obs,
+        inliers: n_in,
+        rms_px: (sum2 / n_in.max(1) as f64).sqrt(),
+        sigma2: (sum2 / (2 * n_in).max(1) as f64).max(1e-8),
+        per_projector: per_sum,
+    }
+}
+
+/// Stage 7: each projector's intrinsics' standard deviations from the Gauss-Newton covariance
+/// at the optimum, and what the data alone say about `cx`.
+fn conditioning(
+    problem: &Problem,
+    geo: &[ProjectorGeometry],
+    z: &[f64],
+    sigma2: f64,
+    homography_fraction: &[f64],
+) -> Vec<Conditioning> {
+    let (s_prior, _, _) = problem.normal_equations(geo, z, 0.0, true);
+    let (s_data, _, _) = problem.normal_equations(geo, z, 0.0, false);
     let cov = s_prior.clone().cholesky().map(|c| c.inverse());
     let std = |i: usize| {
         cov.as_ref().map_or(f64::INFINITY, |c| {
@@ -752,7 +846,7 @@ pub fn self_calibrate(
         let info = s_data[(c, c)] - s_oc.dot(&chol.solve(&s_oc));
         if info > 1e-9 * s_data[(c, c)].max(1e-30) { (sigma2 / info).sqrt() } else { f64::INFINITY }
     };
-    let conditioning: Vec<Conditioning> = (0..geo.len())
+    (0..geo.len())
         .map(|k| Conditioning {
             projector: k as u32,
             f_std_px: std(k * NP),
@@ -761,25 +855,31 @@ pub fn self_calibrate(
             cx_std_data_only_px: cx_data_only(k),
             homography_fraction: homography_fraction[k],
         })
-        .collect();
-    for c in &conditioning {
+        .collect()
+}
+
+/// Stage 8: refuses intrinsics the data do not determine (rather than hand out a
+/// confident-looking wrong model) and warns about poorly determined ones.
+fn check_conditioning(
+    geo: &[ProjectorGeometry],
+    conditioning: &[Conditioning],
+    warnings: &mut Vec<String>,
+) -> Result<(), CalibrateError> {
+    for c in conditioning {
         let g = &geo[c.projector as usize];
         let (w, h) = (g.width as f64, g.height as f64);
-        // Far beyond any use: refuse rather than hand out a confident-looking wrong model.
         if c.f_std_px > 0.01 * g.f || c.cy_std_px > 0.05 * h || c.cx_std_px > 0.05 * w {
-            return Err(CalibrateError::IllPosed(format!(
-                "projector {}: the correspondences do not determine its intrinsics (f = {:.1} +- {:.1} px, \
-                 cx = {:.1} +- {:.1} px, cy = {:.1} +- {:.1} px; a homography explains {:.0} % of them): the \
-                 scene is too flat or too small; calibrate with a larger non-planar object in view",
-                c.projector,
-                g.f,
-                c.f_std_px,
-                g.cx,
-                c.cx_std_px,
-                g.cy,
-                c.cy_std_px,
-                100.0 * c.homography_fraction
-            )));
+            return Err(IllPosed::Undetermined {
+                projector: c.projector as usize,
+                f: g.f,
+                f_std: c.f_std_px,
+                cx: g.cx,
+                cx_std: c.cx_std_px,
+                cy: g.cy,
+                cy_std: c.cy_std_px,
+                homography_percent: 100.0 * c.homography_fraction,
+            }
+            .into());
         }
         if c.f_std_px > 0.002 * g.f {
             warnings.push(format!(
@@ -795,21 +895,7 @@ pub fn self_calibrate(
             ));
         }
     }
-    for (k, (n, s2)) in per_sum.iter().enumerate() {
-        tracing::info!(
-            "projector {k}: {n} inlier observations, RMS {:.3} px",
-            (s2 / (*n).max(1) as f64).sqrt()
-        );
-    }
-    Ok(SelfCalResult {
-        projectors: geo,
-        rms_px: rms,
-        observations: n_obs,
-        inliers: n_in,
-        iterations,
-        conditioning,
-        warnings,
-    })
+    Ok(())
 }
 
 /// The one length the user measured, which fixes the scale.
