@@ -1,5 +1,8 @@
 //! `restage-author`: the command line over the authoring library.
 
+// Arguments' doc comments are clap's help text for a terminal, where `<k>` is a placeholder.
+#![allow(rustdoc::invalid_html_tags)]
+
 mod cli;
 mod gui;
 mod steps;

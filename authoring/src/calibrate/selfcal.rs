@@ -8,7 +8,7 @@
 //! what pins down `f, cx, cy` (one calibrated view plus one projector does not). The
 //! horizontally centred lens shift stays in as a weak prior; the result reports how well
 //! each parameter is determined. Scale is arbitrary (projector 0's baseline is 1) until
-//! [`apply_known_length`].
+//! the one measured length gives the factor ([`scale_for`]).
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SymmetricEigen, Vector3};
 use rand::{Rng, SeedableRng};

@@ -47,7 +47,7 @@ impl HintMap {
 }
 
 /// Reads strokes from RGBA pixels: alpha below 128 is no stroke; any other pixel must carry
-/// a class's display colour (within [`HINT_COLOUR_TOLERANCE`]) or the hints are refused.
+/// a class's display colour (within `HINT_COLOUR_TOLERANCE`, 8 levels) or the hints are refused.
 pub fn hints_from_rgba(
     width: u32,
     height: u32,
