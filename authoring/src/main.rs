@@ -5,6 +5,7 @@
 
 mod cli;
 mod gui;
+mod logging;
 mod steps;
 
 use anyhow::Result;
@@ -47,15 +48,20 @@ enum Command {
     Gui(gui::GuiArgs),
 }
 
-fn main() -> Result<()> {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
-    match Cli::parse().command {
+fn main() -> std::process::ExitCode {
+    let command = Cli::parse().command;
+    logging::init();
+    match run(command) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            logging::print_error(&e);
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(command: Command) -> Result<()> {
+    match command {
         Command::Capture(args) => cli::capture(&args),
         Command::Calibrate(args) => cli::calibrate(&args),
         Command::Decode(args) => cli::decode(&args),

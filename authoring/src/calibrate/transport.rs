@@ -437,6 +437,7 @@ pub fn assemble(
     images.sort_by_key(|(_, r)| (r.dy, r.dx));
     let mut seen: HashMap<(u32, u32), String> = HashMap::new();
     let mut warnings = Vec::new();
+    let (mut sparse, mut saturated) = (Vec::new(), Vec::new());
     for (name, r) in &images {
         if r.dx >= spacing || r.dy >= spacing {
             return Err(TransportError::Shift {
@@ -457,20 +458,55 @@ pub fn assemble(
             });
         }
         let predicted = r.predicted();
-        let missed = r.not_found + r.truncated;
-        if predicted > 0 && missed * 5 > predicted {
-            warnings.push(format!(
-                "projector {projector}: {name}: {missed} of {predicted} dots predicted on the object were \
-                 not found ({} not found, {} merged or smeared); the correspondences there are kept unrefined",
-                r.not_found, r.truncated
-            ));
+        if predicted > 0 && (r.not_found + r.truncated) * 5 > predicted {
+            sparse.push((name, r));
         }
         if r.saturated > 0 {
+            saturated.push((name, r.saturated));
+        }
+    }
+    // One warning per kind and projector, however many images (a real capture can have a
+    // hundred): the first or worst image is named.
+    match sparse.as_slice() {
+        [] => {}
+        [(name, r)] => warnings.push(format!(
+            "projector {projector}: {name}: {} of {} dots predicted on the object were not found ({} not \
+             found, {} merged or smeared); the correspondences there are kept unrefined",
+            r.not_found + r.truncated,
+            r.predicted(),
+            r.not_found,
+            r.truncated
+        )),
+        many => {
+            let sum = |f: &dyn Fn(&DotImageResult) -> usize| many.iter().map(|(_, r)| f(r)).sum::<usize>();
+            let share = |r: &DotImageResult| (r.not_found + r.truncated) as f64 / r.predicted() as f64;
+            let (worst, wr) =
+                many.iter().max_by(|a, b| share(a.1).total_cmp(&share(b.1))).copied().unwrap_or(many[0]);
             warnings.push(format!(
-                "projector {projector}: {name}: {} dots are saturated; their footprint weights are too low",
-                r.saturated
+                "projector {projector}: in {} of {} dot images more than a fifth of the dots predicted on the \
+                 object were not found ({} of {} in all: {} not found, {} merged or smeared; worst {worst}, \
+                 {:.0} %); the correspondences there are kept unrefined",
+                many.len(),
+                images.len(),
+                sum(&|r| r.not_found + r.truncated),
+                sum(&|r| r.predicted()),
+                sum(&|r| r.not_found),
+                sum(&|r| r.truncated),
+                100.0 * share(wr)
             ));
         }
+    }
+    match saturated.as_slice() {
+        [] => {}
+        [(name, n)] => warnings.push(format!(
+            "projector {projector}: {name}: {n} dots are saturated; their footprint weights are too low"
+        )),
+        [(name, _), rest @ ..] => warnings.push(format!(
+            "projector {projector}: {name} and {} other dot images have saturated dots ({} in all); their \
+             footprint weights are too low",
+            rest.len(),
+            saturated.iter().map(|(_, n)| n).sum::<usize>()
+        )),
     }
     let missing = (spacing * spacing) as usize - images.len();
     if missing > 0 {

@@ -6,7 +6,7 @@ pub mod eval;
 pub mod eval_restore;
 pub mod inspect;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::steps::{self, Progress, StepCommand, StepSummary};
@@ -96,10 +96,28 @@ pub fn calibrate(args: &steps::calibrate::CalibrateArgs) -> Result<()> {
     with_bar(|p| steps::calibrate::run(args, p)).map(|_| ())
 }
 
+/// The demo keeps the terminal to a screen: the steps' summary, a count of the warnings and
+/// where to look next; every detail goes to `demo.log` in its folder.
 pub fn demo(args: &steps::demo::Args) -> Result<()> {
+    let out = steps::demo::prepare_out(args)?;
+    let log = out.join("demo.log");
+    crate::logging::log_to_file(&log).with_context(|| format!("creating {}", log.display()))?;
+    crate::logging::quiet();
+    eprintln!(
+        "restage demo: the whole chain on the virtual stage, about 2 minutes on 2 cores and 1 GB of disk"
+    );
     let s = with_bar(|p| steps::demo::run(args, p))?;
-    print!("{}{}", s.bundle, s.verified);
-    eprintln!("\n{}", s.summary);
+    tracing::info!("the bundle:\n{}{}", s.bundle, s.verified);
+    eprint!("{}", s.summary);
+    match crate::logging::warnings() {
+        0 => eprintln!("details: {}", log.display()),
+        n => eprintln!("{n} warning{}: see {}", if n == 1 { "" } else { "s" }, log.display()),
+    }
+    let report = [out.join("index.html"), out.join("comp/restored/report/index.html")]
+        .into_iter()
+        .find(|p| p.is_file())
+        .unwrap_or_else(|| out.join("before_restored_target.png"));
+    eprintln!("open {}; next: restage-author gui {}", report.display(), args.out.display());
     Ok(())
 }
 

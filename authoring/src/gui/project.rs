@@ -334,7 +334,16 @@ impl Project {
     /// The `restage-author` command line (after the program name) that makes a step, with
     /// every path under `base` (the project folder for running here, empty for `steps.sh`).
     /// A compensation step has a second line on a virtual stage: the visitor preview.
+    /// Each line ends in `--force`: a project's steps replace their own earlier outputs.
     pub fn commands(&self, step: Step, small: &Small, hints: &HintLayer, base: &Path) -> Vec<Vec<String>> {
+        let mut lines = self.step_lines(step, small, hints, base);
+        for line in &mut lines {
+            line.push("--force".into());
+        }
+        lines
+    }
+
+    fn step_lines(&self, step: Step, small: &Small, hints: &HintLayer, base: &Path) -> Vec<Vec<String>> {
         let p = |rel: &Path| base.join(rel).display().to_string();
         let s = &small.settings;
         let photo = p(&self.paths.photo);

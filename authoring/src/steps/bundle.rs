@@ -9,6 +9,8 @@ use restage_authoring::export::{BundleDescription, build_writer};
 use restage_shared::keys::load_private_key;
 
 #[derive(Debug, clap::Args)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct BundleArgs {
     /// The bundle description (TOML).
     pub description: PathBuf,
@@ -18,6 +20,9 @@ pub struct BundleArgs {
     /// Where to write the bundle (written beside it, then renamed into place).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
     /// zstd level per section (0 stores frames uncompressed).
     #[arg(long, default_value_t = 3)]
     pub zstd: i32,
@@ -28,6 +33,7 @@ pub struct BundleArgs {
 
 /// Signs and writes the bundle `args` describe; returns its manifest.
 pub fn write(args: &BundleArgs) -> Result<restage_shared::bundle::Manifest> {
+    super::check_out(&args.out, args.force)?;
     let created = match args.created {
         Some(t) => t,
         None => super::now_unix_s()?,

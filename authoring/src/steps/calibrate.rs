@@ -20,12 +20,17 @@ use restage_authoring::stage_model::StageModel;
 use super::Progress;
 
 #[derive(Args)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct CalibrateArgs {
     /// Capture directory (with capture.json).
     pub capture: PathBuf,
     /// Stage directory to write: stage.bin, stage.json, model.ply, report.png, report.json.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
     /// The one length that fixes the scale: the distance in millimetres from the camera's
     /// centre of projection (its lens) to the lens of projector --known-projector, measured
     /// with a tape. Everything else is calibrated from the images.
@@ -184,6 +189,15 @@ fn save(model: &StageModel, out: &Path) -> Result<()> {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &CalibrateArgs, progress: &dyn Progress) -> Result<GeometryReport> {
+    // Everything that can be checked is checked before the minutes of decoding.
+    let mm = args.known_distance_mm;
+    if !(mm.is_finite() && mm > 0.0) {
+        anyhow::bail!(
+            "--known-distance-mm {mm}: expected the camera-to-projector lens distance in millimetres, \
+             a positive number (e.g. 600)"
+        );
+    }
+    super::check_out(&args.out, args.force)?;
     let known = KnownLength::Baseline { projector: args.known_projector, mm: args.known_distance_mm };
     let lux = match (&args.lux_white, &args.lux_file) {
         (Some(text), _) => Some(LuxReadings::parse(text)?),

@@ -13,6 +13,8 @@ use restage_authoring::classify::{self, ClassifyOptions, Picks};
 use restage_authoring::imgio::LinearImage;
 
 #[derive(Args, Debug)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct ClassifyArgs {
     /// The photo: 16-bit linear PNG (a capture set's `photo.png`) or 8-bit sRGB PNG.
     pub photo: PathBuf,
@@ -22,6 +24,9 @@ pub struct ClassifyArgs {
     /// Output directory (created if missing).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
     /// Object mask: 8-bit PNG of the photo's size, non-zero = object. Other pixels get label 255.
     #[arg(long)]
     pub mask: Option<PathBuf>,
@@ -68,6 +73,7 @@ impl std::fmt::Display for ClassifySummary {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &ClassifyArgs, progress: &dyn Progress) -> Result<ClassifySummary> {
+    super::check_out(&args.out, args.force)?;
     let opts = ClassifyOptions { max_iterations: args.max_iterations, prior_picks: args.prior_picks };
     classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, &opts, progress)
 }

@@ -13,6 +13,8 @@ use restage_authoring::stage_model::StageModel;
 use super::Progress;
 
 #[derive(ClapArgs, Debug)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct Args {
     /// Stage model folder (holds stage.bin).
     pub stage_dir: PathBuf,
@@ -40,6 +42,9 @@ pub struct Args {
     /// Output folder for the frames, the certificate and the report.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Resolves RESTORED: a file, or `restored.png` inside a folder.
@@ -79,6 +84,7 @@ impl std::fmt::Display for CompensateSummary {
 /// Runs the step as its arguments say.
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<CompensateSummary> {
     let params = params(args)?;
+    super::check_out(&args.out, args.force)?;
     progress.stage("loading the stage model");
     let stage = StageModel::load(&args.stage_dir)
         .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;
@@ -86,6 +92,21 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<CompensateSummary> {
     let prep = Prepared::new(&stage, params.reduction).context("preparing the stage model")?;
     progress.stage("computing frames and enforcing the light bound");
     run_prepared(args, &stage, &prep)
+}
+
+/// A bound above what CIE 157:2004 recommends for any light-sensitive object deserves a word:
+/// a typo (100000 for 100) would otherwise pass silently.
+pub fn cie157_warning(e_bound_lux: f64) -> Option<String> {
+    use restage_shared::policy::Sensitivity;
+    let (low, _) = Sensitivity::Low.limits();
+    let (medium, _) = Sensitivity::Medium.limits();
+    (e_bound_lux > low).then(|| {
+        format!(
+            "--ebound-lux {e_bound_lux} is above CIE 157:2004's recommended limits ({low} lx for \
+             objects of low sensitivity such as oil paint on canvas, {medium} lx for medium and high \
+             sensitivity such as watercolour, textiles and paper); make sure the object tolerates it"
+        )
+    })
 }
 
 /// The parameters the arguments ask for, checked.
@@ -105,6 +126,9 @@ pub fn params(args: &Args) -> Result<Params> {
 /// (the interactive tool keeps both between runs): frames, certificate and report in `args.out`.
 pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<CompensateSummary> {
     let params = params(args)?;
+    if let Some(w) = cie157_warning(params.e_bound_lux) {
+        tracing::warn!("{w}");
+    }
     let restored = restored_path(&args.restored);
     let target = LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
     let comp = compensate::compensate_on(stage, prep, &target, &params, args.device)

@@ -18,6 +18,8 @@ use super::demo_chain::ChainSummary;
 use super::simulate;
 
 #[derive(clap::Args, Clone, Debug)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct Args {
     /// Output folder for every step's results.
     #[arg(long, default_value = "out/demo")]
@@ -29,6 +31,44 @@ pub struct Args {
     /// there is one, else the CPU; gpu: any adapter, lavapipe included).
     #[arg(long, value_enum, default_value_t = Device::Auto)]
     pub device: Device,
+    /// Write into an output folder that holds files but is not an earlier demo's. The demo
+    /// still deletes nothing there; it replaces the files it writes.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// The file that marks a folder as the demo's: running the demo again there replaces the
+/// demo's own files without `--force`.
+pub const MARKER_FILE: &str = ".restage-demo";
+
+/// Checks the output folder before any work and marks it as the demo's: it must be new,
+/// empty, an earlier demo's (it holds [`MARKER_FILE`]), or `--force` was given. Returns the
+/// folder as an absolute path (files the demo writes name each other by path).
+pub fn prepare_out(args: &Args) -> Result<PathBuf> {
+    if args.out.is_file() {
+        anyhow::bail!("{} is a file; the demo needs a folder for its outputs", args.out.display());
+    }
+    let marked = args.out.join(MARKER_FILE).is_file();
+    let empty = std::fs::read_dir(&args.out).map_or(true, |mut d| d.next().is_none());
+    if !(marked || empty || args.force) {
+        anyhow::bail!(
+            "{} already holds files that are not an earlier demo's; choose a new folder \
+             (e.g. --out out/demo2), or pass --force to write the demo's files among them \
+             (nothing there is deleted)",
+            args.out.display()
+        );
+    }
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
+    let marker = args.out.join(MARKER_FILE);
+    std::fs::write(
+        &marker,
+        "Written by `restage-author demo`: running the demo again here replaces the files it \
+         wrote and deletes nothing.\n",
+    )
+    .with_context(|| format!("cannot write {}", marker.display()))?;
+    std::fs::canonicalize(&args.out)
+        .with_context(|| format!("cannot resolve output folder {}", args.out.display()))
 }
 
 /// The demo's capture: paper-sized projectors, a smaller camera and coarser dot grids and
@@ -49,12 +89,7 @@ pub fn demo_configs(seed: u64) -> (SceneConfig, AcquireConfig) {
 /// Runs the whole chain; returns what it has to say (the cli prints it).
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
     let start = Instant::now();
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create output folder {}", args.out.display()))?;
-    // Files the demo writes (the bundle description) name other outputs by path; an absolute
-    // root keeps them valid whatever folder they are read from.
-    let out = std::fs::canonicalize(&args.out)
-        .with_context(|| format!("cannot resolve output folder {}", args.out.display()))?;
+    let out = prepare_out(args)?;
     let args = &Args { out, ..args.clone() };
     let capture_dir = args.out.join("capture");
 
@@ -64,6 +99,13 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
     let sheet = args.out.join("capture_contact_sheet.png");
     write_contact_sheet(&manifest, &capture_dir, &sheet)?;
     tracing::info!("step 1 (simulate) done at {:.1} s: {}", start.elapsed().as_secs_f64(), sheet.display());
+    let images = 1 + manifest.projectors.iter().map(|p| p.shots.len()).sum::<usize>();
+    let mut head = format!(
+        "1 simulate    {images} camera images of the virtual {} (seed {}), {} projectors\n",
+        scene.scene.name(),
+        args.seed,
+        scene.projectors
+    );
 
     // Step 2: calibrate the stage's geometry. The one length a conservator measures with a tape
     // (camera lens to projector 0's lens) comes from the simulated setup.
@@ -88,6 +130,10 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
         report.dense_rms_px,
         stage_dir.join("report.png").display()
     );
+    head.push_str(&format!(
+        "2 calibrate   {} surface points, reprojection error {:.2} px\n",
+        report.points, report.dense_rms_px
+    ));
 
     // Step 3: colour classification, with picks the virtual stage derives from its ground truth.
     let classify_dir = args.out.join("classify");
@@ -110,6 +156,7 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
         args.seed,
         args.device,
         start,
+        &head,
         progress,
     )?;
 

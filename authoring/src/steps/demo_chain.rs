@@ -51,11 +51,11 @@ pub fn run_chain(
     seed: u64,
     device: Device,
     start: Instant,
+    head: &str,
     progress: &dyn Progress,
 ) -> Result<ChainSummary> {
-    let mut summary = String::new();
+    let mut summary = head.to_string();
     let mut log = |line: String| {
-        tracing::info!("{line}");
         summary.push_str(&line);
         summary.push('\n');
     };
@@ -98,10 +98,14 @@ pub fn run_chain(
     // The model compensation and the bundle use, written so the bundle names what was used.
     let model_dir = out.join("compensation-stage");
     model.save(&model_dir).with_context(|| format!("writing {}", model_dir.display()))?;
-    log(format!(
+    tracing::info!(
         "compensation model ({}): SUBSTITUTE — geometry, correspondences, responses, vignetting and gain from the TRUE stage model ({}); {lux_line}",
         model_dir.display(),
         truth_dir.display()
+    );
+    log(format!(
+        "              compensation below uses the virtual stage's TRUE model with the {} lux scale",
+        if lux_calibrated { "CALIBRATED" } else { "TRUE" }
     ));
 
     // Step 3: classify the photo. A conservator's colour picks are stood in for by pixels
@@ -128,9 +132,13 @@ pub fn run_chain(
         &restage_authoring::classify::ClassifyOptions::default(),
         progress,
     )?;
-    log(format!(
+    tracing::info!(
         "step 3 classify ({:.1} s): {cls}; picks drawn from the ground-truth label map (stand-in for clicks)",
         at()
+    );
+    log(format!(
+        "3 classify    {} paint colours; the picks are stood in by the virtual stage's ground truth",
+        cls.classes
     ));
 
     // Step 4: restore.
@@ -151,9 +159,14 @@ pub fn run_chain(
         hints: None,
         picks: Some(picks_path.clone()),
         grid: "auto".into(),
+        force: true,
     };
     let rs = super::restore::restore_files(&rargs, progress)?;
-    log(format!("step 4 restore ({:.1} s): {rs}", at()));
+    tracing::info!("step 4 restore ({:.1} s): {rs}", at());
+    log(format!(
+        "4 restore     {} colour boundaries smoothed, {} specks removed: {} pixels changed",
+        rs.stats.contours, rs.stats.specks_removed, rs.changed_pixels
+    ));
     let restored =
         LinearImage::load(&restore_dir.join("restored.png")).context("reading the restored image")?;
     let photo = LinearImage::load(&photo_path)?;
@@ -162,7 +175,8 @@ pub fn run_chain(
     let relit = relight::relight_on(&model, &restored, &Lighting::default(), device)?;
     let relit = relight::infuse_noise(&model, &relit, &photo, 0.3, 3)?;
     relit.save_srgb8(&out.join("relit.png"), 1.0)?;
-    log(format!("step 5 relight ({:.1} s): soft key light + 30 % of the photo's material noise", at()));
+    tracing::info!("step 5 relight ({:.1} s): soft key light + 30 % of the photo's material noise", at());
+    log("5 relight     a soft key light, with 30 % of the photo's surface texture".to_string());
 
     // Step 6: compensate three scenes under one bound.
     let params = Params::new(E_BOUND_LUX, Exponent::Finite(8.0), MARGIN)?;
@@ -194,13 +208,18 @@ pub fn run_chain(
         let (de_mean, de_p95, n) = colour_error(&comp, &view, target);
         let tp = true_peak(&stage, &comp.frames);
         let s = &comp.stats;
-        log(format!(
+        tracing::info!(
             "step 6 compensate {id:<8} ({:.1} s): certificate peak {:.1} lx, TRUE peak {:.1} lx (E_bound {E_BOUND_LUX} lx); \
              visitor view vs target CIEDE2000 mean {de_mean:.2}, p95 {de_p95:.2} over {n} px; limited by bound {:.2} %",
             at(),
             s.peak_lux,
             tp,
             100.0 * s.limited_by_bound as f64 / s.covered_points.max(1) as f64
+        );
+        log(format!(
+            "6 compensate  {id:<8} brightest point {:.1} lx, allowed {:.1} (bound {E_BOUND_LUX} lx), truly {tp:.1}; \
+             colour difference {de_mean:.1} ΔE00",
+            s.peak_lux, s.limit_lux
         ));
         let img = LinearImage {
             width: cam.width,
@@ -215,13 +234,16 @@ pub fn run_chain(
     )?;
 
     // Step 7: bundle with a demo key (deterministic from the seed; never a production key).
+    // Only the demo's own key files are replaced; anything else in keys/ and trust/ stays.
     let keys = out.join("keys");
     let trust = out.join("trust");
     for d in [&keys, &trust] {
-        if d.exists() {
-            std::fs::remove_dir_all(d)?;
-        }
         std::fs::create_dir_all(d)?;
+    }
+    for own in [keys.join("demo.pem"), keys.join("demo.pub.pem"), trust.join("demo.pub.pem")] {
+        if own.is_file() {
+            std::fs::remove_file(&own).with_context(|| format!("replacing {}", own.display()))?;
+        }
     }
     let mut key_seed = [0u8; 32];
     key_seed[..8].copy_from_slice(&seed.to_le_bytes());
@@ -274,6 +296,7 @@ pub fn run_chain(
         out: bundle_path.clone(),
         zstd: 3,
         created: None,
+        force: true,
     })?;
     let bundle = format!(
         "{}wrote {}\n",
@@ -281,10 +304,14 @@ pub fn run_chain(
         bundle_path.display()
     );
     let size = std::fs::metadata(&bundle_path)?.len();
-    log(format!(
+    tracing::info!(
         "step 7 bundle ({:.1} s): {} ({:.1} MB), signed with a demo key",
         at(),
         bundle_path.display(),
+        size as f64 / 1e6
+    );
+    log(format!(
+        "7 bundle      demo.restage ({:.1} MB), signed with the DEMO key: for trying restage only",
         size as f64 / 1e6
     ));
 
@@ -298,7 +325,8 @@ pub fn run_chain(
         max_throw_m: restage_shared::light::DEFAULT_MAX_THROW_M,
         min_cos: restage_shared::light::DEFAULT_MIN_COS,
     })?;
-    log(format!("step 8 verify ({:.1} s): bundle verified against {}", at(), trust.display()));
+    tracing::info!("step 8 verify ({:.1} s): bundle verified against {}", at(), trust.display());
+    log("8 verify      the bundle passes the appliance's checks: signature, hashes, light bound".to_string());
 
     // Step 9: contact sheet — before (photo), target (restored), what a visitor sees.
     let tile = 320;
@@ -310,12 +338,14 @@ pub fn run_chain(
     ];
     let sheet_path = out.join("before_restored_target.png");
     contact_sheet::grid(&[row]).save(&sheet_path)?;
-    log(format!(
+    tracing::info!(
         "step 9 render ({:.1} s): {} — photo (before) | restored target | visitor view, restored | visitor view, relit (true physics, brightness normalised by the scale)",
         at(),
         sheet_path.display()
-    ));
-    log(format!("demo chain finished in {:.1} s", at()));
+    );
+    log("9 view        before_restored_target.png: photo | restored target | what a visitor sees, restored | relit"
+        .to_string());
+    log(format!("done in {:.0} s; everything is in {}", at(), out.display()));
     let summary_path = out.join("summary.txt");
     std::fs::write(&summary_path, &summary)?;
     Ok(ChainSummary { bundle, verified, summary })

@@ -42,6 +42,38 @@ impl Progress for Quiet {
     fn count(&self, _: u64, _: u64) {}
 }
 
+/// Refuses to write at `out` when something is already there, unless `force`: a step never
+/// replaces files silently. A folder may exist if it is empty. With `force` a step replaces
+/// only the files it writes and deletes nothing.
+pub fn check_out(out: &std::path::Path, force: bool) -> Result<()> {
+    use anyhow::{Context, bail};
+    if force {
+        return Ok(());
+    }
+    match std::fs::metadata(out) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(e).with_context(|| format!("cannot look at {}", out.display())),
+        Ok(m) if m.is_dir() => {
+            let empty = std::fs::read_dir(out)
+                .with_context(|| format!("cannot read folder {}", out.display()))?
+                .next()
+                .is_none();
+            if empty {
+                Ok(())
+            } else {
+                bail!(
+                    "{} already holds files; choose a new or empty folder, or pass --force to replace \
+                     this step's outputs there (nothing else is deleted)",
+                    out.display()
+                )
+            }
+        }
+        Ok(_) => {
+            bail!("{} already exists; choose another name, or pass --force to replace it", out.display())
+        }
+    }
+}
+
 /// The one time taken at the start of a step (Unix seconds).
 pub fn now_unix_s() -> Result<i64> {
     use anyhow::Context;

@@ -14,6 +14,8 @@ use restage_authoring::stage_model::StageModel;
 use super::Progress;
 
 #[derive(ClapArgs, Debug)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct Args {
     /// Stage model folder (points and normals per camera pixel).
     pub stage_dir: PathBuf,
@@ -38,6 +40,9 @@ pub struct Args {
     /// Output PNG (8-bit sRGB); a side-by-side `<name>_compare.png` is written beside it.
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Where one relighting run wrote its image and its before/after comparison.
@@ -55,6 +60,7 @@ impl std::fmt::Display for RelightSummary {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<RelightSummary> {
+    super::check_out(&args.out, args.force)?;
     progress.stage("relighting");
     let stage = StageModel::load(&args.stage_dir)
         .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;

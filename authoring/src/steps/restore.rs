@@ -18,12 +18,17 @@ use restage_authoring::restore::{
 };
 
 #[derive(Args, Debug, Clone)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct RestoreArgs {
     /// The classification's output directory (`labels.png`, `palette.json`).
     pub classify_dir: PathBuf,
     /// Output directory (created if missing).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
     /// Stop when every contour point's energy is at most alpha (> 0; paper 1..8). Smaller
     /// smooths more: with --scale 10, alpha 2 smooths bends tighter than 5 px radius.
     #[arg(long, default_value_t = 2.0)]
@@ -102,6 +107,7 @@ impl std::fmt::Display for RestoreSummary {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &RestoreArgs, progress: &dyn Progress) -> Result<RestoreSummary> {
+    super::check_out(&args.out, args.force)?;
     restore_files(args, progress)
 }
 

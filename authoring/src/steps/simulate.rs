@@ -55,6 +55,8 @@ impl PatternArgs {
 }
 
 #[derive(clap::Args, Debug)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct Args {
     /// Built-in object: vase, bowl or jar.
     #[arg(long, default_value = "vase")]
@@ -65,6 +67,9 @@ pub struct Args {
     /// Capture directory to write (created if needed; files in it are replaced).
     #[arg(long)]
     pub out: PathBuf,
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
     /// Camera resolution.
     #[arg(long, default_value = "1024x768")]
     pub camera: Size,
@@ -100,6 +105,7 @@ impl Args {
 /// Runs the step as its arguments say.
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<CaptureManifest> {
     let (scene, acq) = args.configs()?;
+    super::check_out(&args.out, args.force)?;
     simulate(&scene, &acq, &args.out, progress)
 }
 

@@ -9,6 +9,8 @@ use restage_shared::bundle::{Limits, VerifyOptions, verify_file};
 use restage_shared::light::{DEFAULT_MAX_THROW_M, DEFAULT_MIN_COS, StageLimits};
 
 #[derive(Debug, clap::Args)]
+// Negative numbers are values, to be refused with a clear message rather than taken for flags.
+#[command(allow_negative_numbers = true)]
 pub struct VerifyArgs {
     pub bundle: PathBuf,
     /// Directory of trusted public keys (*.pem, SPKI).
