@@ -33,6 +33,7 @@ pub enum AcquireError {
 
 /// What to capture per projector.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AcquireConfig {
     /// Dot-grid spacing in projector pixels: `spacing^2` shifted grids per projector.
     pub dot_spacing: u32,

@@ -34,6 +34,7 @@ pub enum CaptureSetError {
 /// Pinhole camera intrinsics in the OpenCV convention: integer pixel coordinates are pixel
 /// centres, +x right, +y down; no distortion (undistort before, if a real lens needs it).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CameraIntrinsics {
     pub width: u32,
     pub height: u32,
@@ -76,6 +77,7 @@ impl CameraIntrinsics {
 /// Which axis of the projector image a structured-light pattern encodes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
+#[serde(deny_unknown_fields)]
 pub enum Axis {
     /// Columns (projector x).
     X,
@@ -95,6 +97,7 @@ pub enum Axis {
 /// - Ramp: channel `channel` (0 r, 1 g, 2 b; 3 all three) at 8-bit `level`, others 0.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(deny_unknown_fields)]
 pub enum Pattern {
     White,
     Black,
@@ -106,6 +109,7 @@ pub enum Pattern {
 
 /// One camera image of one projector's pattern.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Shot {
     pub pattern: Pattern,
     /// Path relative to the capture directory.
@@ -114,6 +118,7 @@ pub struct Shot {
 
 /// Everything captured for one projector.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ProjectorCapture {
     pub index: u32,
     /// Projector resolution (the patterns' size).
@@ -124,6 +129,7 @@ pub struct ProjectorCapture {
 
 /// The manifest, `capture.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CaptureManifest {
     pub version: u32,
     /// Free text: "virtual stage: vase, seed 7" or the camera device.

@@ -13,6 +13,11 @@ use thiserror::Error;
 pub enum ImageError {
     #[error("cannot read image {path}: {source}")]
     Read { path: PathBuf, source: image::ImageError },
+    #[error(
+        "cannot read image {path}: {source}; restage reads PNG, JPEG and TIFF (convert other \
+         formats first, e.g. `magick photo.heic photo.png`)"
+    )]
+    Unsupported { path: PathBuf, source: image::ImageError },
     #[error("cannot write image {path}: {source}")]
     Write { path: PathBuf, source: image::ImageError },
     #[error("image {path} is {got_w}x{got_h}, expected {want_w}x{want_h}")]
@@ -47,7 +52,10 @@ impl LinearImage {
     /// Reads a PNG (8 or 16 bit, grey or colour). 16-bit files are taken as linear light
     /// (our camera images); 8-bit files are decoded from sRGB.
     pub fn load(path: &Path) -> Result<Self, ImageError> {
-        let img = image::open(path).map_err(|source| ImageError::Read { path: path.into(), source })?;
+        let img = image::open(path).map_err(|source| match source {
+            image::ImageError::Unsupported(_) => ImageError::Unsupported { path: path.into(), source },
+            source => ImageError::Read { path: path.into(), source },
+        })?;
         let is16 = matches!(
             img.color(),
             image::ColorType::L16

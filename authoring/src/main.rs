@@ -9,7 +9,7 @@ mod logging;
 mod steps;
 
 use anyhow::Result;
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 #[derive(Parser)]
 #[command(name = "restage-author", version, about = "Author restoration bundles for a restage appliance")]
@@ -46,6 +46,21 @@ enum Command {
     Verify(steps::verify::VerifyArgs),
     /// The interactive tool: picks, regions, hints and parameters over a project folder.
     Gui(gui::GuiArgs),
+    /// Print a shell completion script, e.g. `restage-author completions bash >
+    /// ~/.local/share/bash-completion/completions/restage-author`.
+    Completions {
+        /// bash, zsh, fish, elvish or powershell.
+        shell: clap_complete::Shell,
+    },
+    /// Write man pages (restage-author.1 and one per command) into a folder.
+    Man {
+        /// Folder for the pages (e.g. ~/.local/share/man/man1).
+        #[arg(long, default_value = "man")]
+        out: std::path::PathBuf,
+        /// Replace pages that are already there.
+        #[arg(long)]
+        force: bool,
+    },
 }
 
 fn main() -> std::process::ExitCode {
@@ -75,5 +90,10 @@ fn run(command: Command) -> Result<()> {
         Command::Inspect(a) => cli::inspect::run(&a),
         Command::Verify(a) => cli::verify(&a),
         Command::Gui(a) => gui::run(a),
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut Cli::command(), "restage-author", &mut std::io::stdout());
+            Ok(())
+        }
+        Command::Man { out, force } => cli::man(Cli::command(), &out, force),
     }
 }

@@ -47,6 +47,7 @@ pub enum LuxError {
 /// How the meter's sensor faced during the reading.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "kebab-case")]
+#[serde(deny_unknown_fields)]
 pub enum Meter {
     /// Sensor pointed at the projector's lens (cos theta = 1): the usual way.
     #[default]

@@ -85,6 +85,7 @@ impl LabelMap {
 
 /// One paint colour of the object.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PaletteClass {
     /// The conservator's name for the colour, e.g. "black paint".
     pub name: String,
@@ -103,6 +104,7 @@ pub struct PaletteClass {
 
 /// `palette.json`: the colours, the fitted distance weights and how the clustering ran.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Palette {
     /// Format version, [`PALETTE_VERSION`].
     pub version: u32,

@@ -21,6 +21,7 @@ pub const PICKS_VERSION: u32 = 1;
 
 /// An axis-aligned rectangle of picked pixels: columns `x..x+width`, rows `y..y+height`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PickRect {
     pub x: i64,
     pub y: i64,
@@ -30,6 +31,7 @@ pub struct PickRect {
 
 /// One named paint colour and the pixels that show it.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PickColour {
     pub name: String,
     /// The colour the restoration should show (8-bit sRGB), if the conservator chose one.
@@ -48,6 +50,7 @@ pub struct PickColour {
 
 /// `picks.json`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Picks {
     pub version: u32,
     pub colours: Vec<PickColour>,

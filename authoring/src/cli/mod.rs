@@ -122,7 +122,11 @@ pub fn demo(args: &steps::demo::Args) -> Result<()> {
 }
 
 pub fn keygen(args: &steps::keygen::KeygenArgs) -> Result<()> {
-    let (id, private, public) = steps::keygen::generate(&args.out)?;
+    let stem = steps::keygen::stem_for(&args.out)?;
+    if let Some(dir) = stem.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    let (id, private, public) = steps::keygen::generate(&stem)?;
     println!("key id      {id}");
     println!("private key {} (keep it secret; mode 0600)", private.display());
     println!("public key  {} (copy into the appliance's trust directory)", public.display());
@@ -133,6 +137,16 @@ pub fn bundle(args: &steps::bundle::BundleArgs) -> Result<()> {
     let manifest = steps::bundle::write(args)?;
     print!("{}", restage_shared::bundle::describe(&manifest, None));
     println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+/// Writes the man pages of `command` and its subcommands into `out`.
+pub fn man(command: clap::Command, out: &std::path::Path, force: bool) -> Result<()> {
+    steps::check_out(out, force)?;
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    clap_mangen::generate_to(command, out)
+        .with_context(|| format!("writing man pages into {}", out.display()))?;
+    println!("man pages in {}; read one with `man -l {}/restage-author.1`", out.display(), out.display());
     Ok(())
 }
 

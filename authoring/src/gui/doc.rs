@@ -70,6 +70,7 @@ impl Step {
 /// The scenes a project can put into a bundle.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[serde(deny_unknown_fields)]
 pub enum Scene {
     Original,
     Restored,
@@ -165,6 +166,7 @@ impl FromIterator<Step> for Steps {
 /// A restoration region as the tool edits it; written as the CLI's `--region` text.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(deny_unknown_fields)]
 pub enum RegionSpec {
     Rect { x: u32, y: u32, width: u32, height: u32, background: Option<u8> },
     Polygon { points: Vec<[f64; 2]>, background: Option<u8> },

@@ -28,6 +28,7 @@ pub enum RelightError {
 /// A virtual light. Colours are linear RGB multipliers (1 = white of unit strength).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(deny_unknown_fields)]
 pub enum Light {
     /// Light travelling along `direction` (camera frame: +x right, +y down, +z away from
     /// the camera), e.g. `[0.5, 0.5, 1.0]` comes from the upper left behind the camera.
@@ -38,6 +39,7 @@ pub enum Light {
 
 /// The virtual lighting of one relit variant.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Lighting {
     pub lights: Vec<Light>,
     /// Light reaching every point regardless of orientation (keeps shadowed sides visible).

@@ -10,6 +10,7 @@ pub type V3 = Vector3<f64>;
 /// Radius as a function of height along the axis (mm), closed forms.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case")]
+#[serde(deny_unknown_fields)]
 pub enum Profile {
     /// A vase: foot, round belly, narrow neck, flared lip; 300 mm tall.
     Vase,

@@ -77,6 +77,7 @@ pub struct LuxMeterSession {
 /// The built-in objects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[serde(deny_unknown_fields)]
 pub enum SceneName {
     Vase,
     Bowl,
@@ -124,6 +125,7 @@ impl FromStr for SceneName {
 /// Everything that defines a built-in virtual stage. The same config always gives the same
 /// stage, captures included.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SceneConfig {
     pub scene: SceneName,
     pub seed: u64,

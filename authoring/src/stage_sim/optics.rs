@@ -16,6 +16,7 @@ use crate::stage_model::ProjectorModel;
 
 /// How one projector is built: placement around the object and its optics and radiometry.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ProjectorSpec {
     /// Degrees around the object's axis from the camera's direction (positive: camera's right).
     pub azimuth_deg: f64,
@@ -346,6 +347,7 @@ impl Integrator {
 
 /// How the camera is built.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct CameraSpec {
     /// Focal length in pixels as a multiple of the image height.
     pub focal_per_height: f64,

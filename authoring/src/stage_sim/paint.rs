@@ -11,6 +11,7 @@ use crate::imgio::srgb_to_linear;
 
 /// One paint colour (class) of a scene.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PaintClass {
     pub name: String,
     /// The colour as 8-bit sRGB, for people.
@@ -22,6 +23,7 @@ pub struct PaintClass {
 /// The classes of a scene: index 0 is the background slip; the last is the bare clay that
 /// chips and cracks expose (it does not occur on the pristine object).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Palette {
     pub classes: Vec<PaintClass>,
     /// Index of the background (ground) colour the design is painted on.
@@ -37,6 +39,7 @@ fn class(name: &str, srgb: [u8; 3]) -> PaintClass {
 /// The built-in designs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[serde(deny_unknown_fields)]
 pub enum Design {
     /// Bands, a zig-zag frieze and dots (Casas Grandes style); 4 colours.
     Vase,
@@ -184,6 +187,7 @@ impl Design {
 
 /// A chip: paint gone, clay shows. Irregular outline from two angular harmonics.
 #[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Chip {
     pub theta: f64,
     pub h: f64,
@@ -193,6 +197,7 @@ pub struct Chip {
 
 /// A soft stain multiplying the albedo by a brown tint.
 #[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Stain {
     pub theta: f64,
     pub h: f64,
@@ -202,6 +207,7 @@ pub struct Stain {
 
 /// Seeded deterioration of one object (coordinates on the surface: azimuth, height).
 #[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Deterioration {
     pub chips: Vec<Chip>,
     pub stains: Vec<Stain>,

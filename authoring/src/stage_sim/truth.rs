@@ -19,6 +19,7 @@ pub const TRUTH_FILE: &str = "truth.json";
 
 /// A projector as `truth.json` describes it (no per-pixel arrays; those are in `stage.bin`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ProjectorTruth {
     pub width: u32,
     pub height: u32,
@@ -38,6 +39,7 @@ pub struct ProjectorTruth {
 
 /// Deterioration statistics over the object's camera pixels.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct WearStats {
     pub object_pixels: u64,
     /// Fractions of object pixels.
@@ -56,6 +58,7 @@ pub struct WearStats {
 
 /// `truth.json`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Truth {
     /// The built-in scene config (None for hand-built stages, which `render` cannot rebuild).
     pub config: Option<SceneConfig>,
