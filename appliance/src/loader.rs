@@ -499,7 +499,7 @@ mod tests {
         let write = |version: u64| {
             let path = dir.path().join(format!("v{version}.bundle"));
             let spec = ExampleSpec { version, ..ExampleSpec::small() };
-            example_writer(&spec).write(&key, File::create(&path).unwrap()).unwrap();
+            example_writer(&spec).unwrap().write(&key, File::create(&path).unwrap()).unwrap();
             path
         };
         let (v3, v4) = (write(3), write(4));
@@ -534,7 +534,7 @@ mod tests {
         std::fs::create_dir(&trust).unwrap();
         std::fs::write(trust.join("k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
         let path = dir.path().join("b.bundle");
-        example_writer(&ExampleSpec::small()).write(&key, File::create(&path).unwrap()).unwrap();
+        example_writer(&ExampleSpec::small()).unwrap().write(&key, File::create(&path).unwrap()).unwrap();
         let ledger = Ledger::open_in_memory(crate::zone::LocalZone::utc()).unwrap();
         let opts = LoadOptions { memory: Some((1 << 20, false)), ..LoadOptions::default() };
         let e = prepare(&path, &trust, &ledger, 1_700_000_100_000, &opts).unwrap_err();

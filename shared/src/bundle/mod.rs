@@ -64,6 +64,8 @@ pub enum BundleError {
     KeyIdMismatch { manifest: KeyId, block: KeyId },
     #[error("the manifest does not decode: {0}")]
     ManifestDecode(String),
+    #[error("the manifest does not encode: {0}")]
+    ManifestEncode(String),
     #[error("the manifest is invalid: {0}")]
     ManifestInvalid(String),
     #[error("the bundle is not valid before {not_before} (Unix s); now is {now}")]
