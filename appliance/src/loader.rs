@@ -25,8 +25,7 @@ use thiserror::Error;
 use crate::config::IdleMode;
 use crate::identify::Pattern;
 use crate::ledger::{ActiveBundle, Budgets, Ledger, LedgerError};
-use crate::player::Look;
-use crate::show::{Policy, Response, Scene, SceneKind, Show};
+use crate::show::{Look, Policy, Response, Scene, SceneKind, Show};
 
 #[derive(Debug, Error)]
 pub enum LoadError {

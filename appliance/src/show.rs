@@ -1,9 +1,22 @@
 //! A verified bundle as the player holds it: scenes with their peak lux (frames stay in the
-//! loader's store),
-//! the projector responses (for cross-fades in linear light) and the exposure policy.
-//! Only `loader` builds one, after every check passed.
+//! loader's store), the projector responses (for cross-fades in linear light), the exposure
+//! policy, and what the projectors show ([`Look`]). Only `loader` builds one, after every
+//! check passed.
+//!
+//! Dependencies go one way: `player` uses this module; this module does not use `player`.
 
-use crate::player::Look;
+/// What the projectors show.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Look {
+    /// A scene's frames, by index into [`Show::scenes`].
+    Scene(usize),
+    /// Black frames with the projectors on.
+    Black,
+    /// Outputs blanked (dark).
+    Off,
+    /// Projector `k`'s commissioning pattern (`identify`), the others black.
+    Identify(usize),
+}
 
 /// What a scene is for (the bundle manifest's scene kind).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
