@@ -16,7 +16,7 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions};
+use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions, hex};
 use restage_shared::keys::{KeyError, TrustStore};
 use restage_shared::light::{LightCheck, LightError, StageLimits, XrgbFrame, max_irradiance};
 use restage_shared::policy::IdleMode as PolicyIdle;
@@ -164,7 +164,7 @@ pub fn open_verified_within(
         }
     }
     let bundle = reader.verify(|_| Ok(())).map_err(refused)?;
-    let hash: String = bundle.manifest_hash.iter().map(|b| format!("{b:02x}")).collect();
+    let hash = hex(&bundle.manifest_hash);
     ledger
         .check_version(&bundle.manifest.object.id, bundle.manifest.version, &hash)
         .map_err(|source| LoadError::Version { path: path.into(), source })?;
@@ -278,16 +278,7 @@ pub fn prepare(
         .scenes
         .iter()
         .zip(&bundle.peaks)
-        .map(|(s, peak)| Scene {
-            id: s.id.clone(),
-            name: s.name.clone(),
-            kind: match s.kind {
-                restage_shared::bundle::SceneKind::Original => SceneKind::Original,
-                restage_shared::bundle::SceneKind::Restoration => SceneKind::Restoration,
-                restage_shared::bundle::SceneKind::Relit => SceneKind::Relit,
-            },
-            peak_lux: peak.lux,
-        })
+        .map(|(s, peak)| Scene { id: s.id.clone(), name: s.name.clone(), kind: s.kind, peak_lux: peak.lux })
         .collect();
     let p = &m.policy;
     let policy_idle = match &p.idle {
@@ -474,8 +465,7 @@ pub fn installed(path: &Path, trust_dir: &Path, ledger: &Ledger, now_unix_ms: i6
     };
     match open().and_then(|f| BundleReader::open(f, &trust, &opts).map_err(|e| e.to_string())) {
         Ok(r) => {
-            let hash: String = r.manifest_hash().iter().take(8).map(|b| format!("{b:02x}")).collect();
-            out.hash = Some(hash);
+            out.hash = Some(hex(&r.manifest_hash()[..8]));
         }
         Err(e) => out.problem = Some(e),
     }

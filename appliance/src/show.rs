@@ -18,16 +18,9 @@ pub enum Look {
     Identify(usize),
 }
 
-/// What a scene is for (the bundle manifest's scene kind).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SceneKind {
-    /// The object as it is: shown while idle when configured.
-    Original,
-    /// A restoration: the first press shows the first one.
-    Restoration,
-    /// A relit variant of a restoration.
-    Relit,
-}
+/// What a scene is for: the bundle manifest's scene kind. `Original` may be shown while idle
+/// when configured; the first press shows the first `Restoration`; `Relit` variants follow.
+pub use restage_shared::bundle::SceneKind;
 
 /// One scene: a frame per projector and the peak illuminance it puts on the object.
 #[derive(Clone, Debug)]

@@ -15,7 +15,7 @@ mod writer;
 
 use std::path::PathBuf;
 
-pub use describe::{BundleFileError, describe, inspect_file, utc, verify_file};
+pub use describe::{BundleFileError, describe, hex, inspect_file, utc, verify_file};
 pub use manifest::*;
 pub use reader::{BundleReader, Limits, VerifiedBundle, VerifiedSection, VerifyOptions};
 use thiserror::Error;
