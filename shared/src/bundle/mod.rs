@@ -67,7 +67,7 @@ pub enum BundleError {
     #[error("the manifest does not encode: {0}")]
     ManifestEncode(String),
     #[error("the manifest is invalid: {0}")]
-    ManifestInvalid(String),
+    ManifestInvalid(#[from] ManifestError),
     #[error("the bundle is not valid before {not_before} (Unix s); now is {now}")]
     NotYetValid { not_before: i64, now: i64 },
     #[error("the bundle expired at {expires} (Unix s); now is {now}")]

@@ -12,7 +12,7 @@ use ed25519_dalek::{SIGNATURE_LENGTH, Signature};
 
 use super::{
     BundleError, Compression, FORMAT_VERSION, HEADER_LEN, MAGIC, MAX_MANIFEST_LEN, MAX_SECTION_LEN, Manifest,
-    SIGNATURE_BLOCK_LEN, Section, SectionKind,
+    ManifestError, SIGNATURE_BLOCK_LEN, Section, SectionKind,
 };
 use crate::keys::{KEY_ID_LEN, KeyId, TrustStore};
 use crate::light::{LightCertificate, LightCheck, PeakIrradiance, StageLimits, XrgbFrame};
@@ -218,7 +218,7 @@ impl<R: Read + Seek> BundleReader<R> {
         if manifest.key_id != key_id {
             return Err(BundleError::KeyIdMismatch { manifest: manifest.key_id, block: key_id });
         }
-        manifest.validate(limits.max_section).map_err(BundleError::ManifestInvalid)?;
+        manifest.validate(limits.max_section)?;
         if let Some((_, opts)) = auth {
             let now = opts.now_unix_s;
             if let Some(not_before) = manifest.not_before_unix_s
@@ -247,7 +247,7 @@ impl<R: Read + Seek> BundleReader<R> {
             offsets.push(at);
             at = at
                 .checked_add(s.stored_len)
-                .ok_or_else(|| BundleError::ManifestInvalid("sections overflow u64".into()))?;
+                .ok_or(BundleError::ManifestInvalid(ManifestError::PayloadOverflow))?;
             if at > file_len {
                 return Err(BundleError::Truncated {
                     what: format!("section {i} ({:?})", s.kind),

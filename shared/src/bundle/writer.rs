@@ -214,7 +214,7 @@ impl BundleWriter {
             sections,
             generator: info.generator,
         };
-        manifest.validate(MAX_SECTION_LEN).map_err(BundleError::ManifestInvalid)?;
+        manifest.validate(MAX_SECTION_LEN)?;
         let manifest_bytes =
             postcard::to_stdvec(&manifest).map_err(|e| BundleError::ManifestEncode(e.to_string()))?;
         let mlen = manifest_bytes.len() as u64;
