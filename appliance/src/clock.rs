@@ -45,18 +45,28 @@ pub trait TimeSource: Send + Sync {
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SystemTime;
 
-/// Microseconds of CLOCK_BOOTTIME (0 if unreadable, which Linux never is).
-pub fn boot_us() -> u64 {
-    nix::time::clock_gettime(nix::time::ClockId::CLOCK_BOOTTIME)
+/// Microseconds of `clock` (0 if unreadable, which Linux never is for these clocks).
+fn clock_us(clock: nix::time::ClockId) -> u64 {
+    nix::time::clock_gettime(clock)
         .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
         .unwrap_or(0)
 }
 
-/// Microseconds of CLOCK_MONOTONIC (the clock of DRM flip timestamps, for logs).
+/// Microseconds of CLOCK_BOOTTIME.
+pub fn boot_us() -> u64 {
+    clock_us(nix::time::ClockId::CLOCK_BOOTTIME)
+}
+
+/// Microseconds of CLOCK_MONOTONIC: the clock of DRM's flip event timestamps (the KMS output
+/// and the logs compare against it).
 pub fn monotonic_us() -> u64 {
-    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
-        .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
-        .unwrap_or(0)
+    clock_us(nix::time::ClockId::CLOCK_MONOTONIC)
+}
+
+/// Microseconds of the wall clock (CLOCK_REALTIME), for logs and recordings; 0 before 1970.
+/// Ledger time is [`LedgerClock`]'s, never this.
+pub fn unix_us() -> u64 {
+    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
 }
 
 impl TimeSource for SystemTime {

@@ -219,7 +219,7 @@ mod tests {
                 Availability::Showing,
             ),
             (
-                State::Ending { from: 0, to: crate::player::Look::Off, fade_start_ms: 5, step: 1, steps: 3 },
+                State::Ending { from: 0, to: crate::show::Look::Off, fade_start_ms: 5, step: 1, steps: 3 },
                 Availability::Showing,
             ),
             (State::Cooldown { until_ms: 42 }, Availability::Wait { until_mono_ms: 42 }),

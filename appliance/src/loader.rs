@@ -16,7 +16,7 @@ use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions};
+use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions, hex};
 use restage_shared::keys::{KeyError, TrustStore};
 use restage_shared::light::{LightCheck, LightError, StageLimits, XrgbFrame, max_irradiance};
 use restage_shared::policy::IdleMode as PolicyIdle;
@@ -25,8 +25,7 @@ use thiserror::Error;
 use crate::config::IdleMode;
 use crate::identify::Pattern;
 use crate::ledger::{ActiveBundle, Budgets, Ledger, LedgerError};
-use crate::player::Look;
-use crate::show::{Policy, Response, Scene, SceneKind, Show};
+use crate::show::{Look, Policy, Response, Scene, SceneKind, Show};
 
 #[derive(Debug, Error)]
 pub enum LoadError {
@@ -165,7 +164,7 @@ pub fn open_verified_within(
         }
     }
     let bundle = reader.verify(|_| Ok(())).map_err(refused)?;
-    let hash: String = bundle.manifest_hash.iter().map(|b| format!("{b:02x}")).collect();
+    let hash = hex(&bundle.manifest_hash);
     ledger
         .check_version(&bundle.manifest.object.id, bundle.manifest.version, &hash)
         .map_err(|source| LoadError::Version { path: path.into(), source })?;
@@ -279,16 +278,7 @@ pub fn prepare(
         .scenes
         .iter()
         .zip(&bundle.peaks)
-        .map(|(s, peak)| Scene {
-            id: s.id.clone(),
-            name: s.name.clone(),
-            kind: match s.kind {
-                restage_shared::bundle::SceneKind::Original => SceneKind::Original,
-                restage_shared::bundle::SceneKind::Restoration => SceneKind::Restoration,
-                restage_shared::bundle::SceneKind::Relit => SceneKind::Relit,
-            },
-            peak_lux: peak.lux,
-        })
+        .map(|(s, peak)| Scene { id: s.id.clone(), name: s.name.clone(), kind: s.kind, peak_lux: peak.lux })
         .collect();
     let p = &m.policy;
     let policy_idle = match &p.idle {
@@ -475,8 +465,7 @@ pub fn installed(path: &Path, trust_dir: &Path, ledger: &Ledger, now_unix_ms: i6
     };
     match open().and_then(|f| BundleReader::open(f, &trust, &opts).map_err(|e| e.to_string())) {
         Ok(r) => {
-            let hash: String = r.manifest_hash().iter().take(8).map(|b| format!("{b:02x}")).collect();
-            out.hash = Some(hash);
+            out.hash = Some(hex(&r.manifest_hash()[..8]));
         }
         Err(e) => out.problem = Some(e),
     }
@@ -499,7 +488,7 @@ mod tests {
         let write = |version: u64| {
             let path = dir.path().join(format!("v{version}.bundle"));
             let spec = ExampleSpec { version, ..ExampleSpec::small() };
-            example_writer(&spec).write(&key, File::create(&path).unwrap()).unwrap();
+            example_writer(&spec).unwrap().write(&key, File::create(&path).unwrap()).unwrap();
             path
         };
         let (v3, v4) = (write(3), write(4));
@@ -534,7 +523,7 @@ mod tests {
         std::fs::create_dir(&trust).unwrap();
         std::fs::write(trust.join("k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
         let path = dir.path().join("b.bundle");
-        example_writer(&ExampleSpec::small()).write(&key, File::create(&path).unwrap()).unwrap();
+        example_writer(&ExampleSpec::small()).unwrap().write(&key, File::create(&path).unwrap()).unwrap();
         let ledger = Ledger::open_in_memory(crate::zone::LocalZone::utc()).unwrap();
         let opts = LoadOptions { memory: Some((1 << 20, false)), ..LoadOptions::default() };
         let e = prepare(&path, &trust, &ledger, 1_700_000_100_000, &opts).unwrap_err();

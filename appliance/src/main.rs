@@ -1,5 +1,9 @@
 //! `restage-appliance`: the stage machine's program.
 
+// Non-test code never unwraps, expects or panics: bad input or a fault is an error value and
+// the outputs go dark on it, never an abort. Tests may.
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
+
 use std::io::Write;
 use std::path::{Path, PathBuf};
 

@@ -7,10 +7,13 @@
 //! showing at the policy maximum whatever the button does: presses only ever start or cycle
 //! a showing. Closing time ends a showing with its normal fade, to dark; while closed there
 //! is no light and no reservation, and presses are refused with the reason.
+//!
+//! Dependencies go one way: the player uses `show` (the content and [`Look`]); `show` knows
+//! nothing of the player.
 
 use std::sync::Arc;
 
-use crate::show::Show;
+use crate::show::{Look, Show};
 
 pub use crate::clock::{Clock, Now};
 
@@ -39,19 +42,6 @@ pub enum Event {
     /// Operator: show projector `projector`'s commissioning pattern for `ms` (from idle only;
     /// paid like any light), then back to idle.
     Identify { projector: usize, ms: u64 },
-}
-
-/// What the projectors show.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Look {
-    /// A scene's frames, by index into `Show::scenes`.
-    Scene(usize),
-    /// Black frames with the projectors on.
-    Black,
-    /// Outputs blanked (dark).
-    Off,
-    /// Projector `k`'s commissioning pattern (`identify`), the others black.
-    Identify(usize),
 }
 
 /// What the outputs must do.

@@ -26,8 +26,8 @@ use crate::notify::Notifier;
 use crate::output::headless::HeadlessOutput;
 use crate::output::{FrameRef, Output, OutputError};
 use crate::pjlink::{PjlinkControl, ProjectorStatus, Want};
-use crate::player::{Command, Event, Look, Player, PlayerSettings, STOPPED, State};
-use crate::show::{Show, mix_linear};
+use crate::player::{Command, Event, Player, PlayerSettings, STOPPED, State};
+use crate::show::{Look, Show, mix_linear};
 use crate::status::{self, Snapshot};
 
 /// After a ledger fault (a lock held too long, an I/O error), light is tried again this

@@ -1,20 +1,26 @@
 //! A verified bundle as the player holds it: scenes with their peak lux (frames stay in the
-//! loader's store),
-//! the projector responses (for cross-fades in linear light) and the exposure policy.
-//! Only `loader` builds one, after every check passed.
+//! loader's store), the projector responses (for cross-fades in linear light), the exposure
+//! policy, and what the projectors show ([`Look`]). Only `loader` builds one, after every
+//! check passed.
+//!
+//! Dependencies go one way: `player` uses this module; this module does not use `player`.
 
-use crate::player::Look;
-
-/// What a scene is for (the bundle manifest's scene kind).
+/// What the projectors show.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SceneKind {
-    /// The object as it is: shown while idle when configured.
-    Original,
-    /// A restoration: the first press shows the first one.
-    Restoration,
-    /// A relit variant of a restoration.
-    Relit,
+pub enum Look {
+    /// A scene's frames, by index into [`Show::scenes`].
+    Scene(usize),
+    /// Black frames with the projectors on.
+    Black,
+    /// Outputs blanked (dark).
+    Off,
+    /// Projector `k`'s commissioning pattern (`identify`), the others black.
+    Identify(usize),
 }
+
+/// What a scene is for: the bundle manifest's scene kind. `Original` may be shown while idle
+/// when configured; the first press shows the first `Restoration`; `Relit` variants follow.
+pub use restage_shared::bundle::SceneKind;
 
 /// One scene: a frame per projector and the peak illuminance it puts on the object.
 #[derive(Clone, Debug)]

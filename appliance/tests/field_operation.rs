@@ -33,6 +33,7 @@ impl Stage {
         std::fs::write(root.join("trust/k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
         let spec = ExampleSpec { expires_unix_s: Some(4_102_444_800), ..ExampleSpec::small() };
         example_writer(&spec)
+            .unwrap()
             .write(&key, std::fs::File::create(root.join("state/active.bundle")).unwrap())
             .unwrap();
         // A free port for the status page (taken back by the appliance a moment later).

@@ -28,7 +28,10 @@ fn stage() -> Stage {
     std::fs::write(root.join("trust/k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
     // Expires 2100-01-01: far ahead of any test machine's clock.
     let spec = ExampleSpec { expires_unix_s: Some(4_102_444_800), ..ExampleSpec::small() };
-    example_writer(&spec).write(&key, std::fs::File::create(root.join("new.restage")).unwrap()).unwrap();
+    example_writer(&spec)
+        .unwrap()
+        .write(&key, std::fs::File::create(root.join("new.restage")).unwrap())
+        .unwrap();
     let config = root.join("appliance.toml");
     std::fs::write(
         &config,

@@ -29,13 +29,17 @@ fn verify_accepts_good_and_refuses_over_bound() {
     std::fs::write(trust.join("k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
 
     let good = dir.path().join("good.restage");
-    example_writer(&ExampleSpec::small()).write(&key, std::fs::File::create(&good).unwrap()).unwrap();
+    example_writer(&ExampleSpec::small())
+        .unwrap()
+        .write(&key, std::fs::File::create(&good).unwrap())
+        .unwrap();
     let (ok, out) = verify(&good, &trust);
     assert!(ok && out.contains("OK: signature verified") && out.contains("peak"), "{out}");
 
     let bad = dir.path().join("bad.restage");
     let spec = ExampleSpec { lux_per_unit: 40.0, ..ExampleSpec::small() };
     example_writer(&spec)
+        .unwrap()
         .skip_bound_check_for_test_fixtures()
         .write(&key, std::fs::File::create(&bad).unwrap())
         .unwrap();
@@ -56,7 +60,10 @@ fn verify_refuses_lying_certificates() {
     std::fs::write(trust.join("k.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
     for lie in Lie::ALL {
         let path = dir.path().join(format!("{lie:?}.restage"));
-        lying_writer(&ExampleSpec::small(), lie).write(&key, std::fs::File::create(&path).unwrap()).unwrap();
+        lying_writer(&ExampleSpec::small(), lie)
+            .unwrap()
+            .write(&key, std::fs::File::create(&path).unwrap())
+            .unwrap();
         let (ok, out) = verify(&path, &trust);
         let want = match lie {
             Lie::ZeroCoefficients => "projector 0 point 0: block [0, 7) x [0, 7) has L_ik = 0",
@@ -75,7 +82,10 @@ fn verify_refuses_lying_certificates() {
     // A throw limit tighter than the bundle's coefficients imply refuses an honest bundle too:
     // the limits are the stage's.
     let good = dir.path().join("good.restage");
-    example_writer(&ExampleSpec::small()).write(&key, std::fs::File::create(&good).unwrap()).unwrap();
+    example_writer(&ExampleSpec::small())
+        .unwrap()
+        .write(&key, std::fs::File::create(&good).unwrap())
+        .unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_restage-appliance"))
         .arg("verify")
         .arg(&good)

@@ -17,7 +17,7 @@ fn bench(c: &mut Criterion) {
     let mut g = c.benchmark_group("verify_load_3x3x1400x1050");
     g.sample_size(10);
     for (name, zstd) in [("plain", false), ("zstd3", true)] {
-        let w = example_writer(&spec);
+        let w = example_writer(&spec).unwrap();
         let w = if zstd { w.zstd(3) } else { w };
         let mut bytes = Vec::new();
         w.write(&key, &mut bytes).unwrap();

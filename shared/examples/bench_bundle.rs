@@ -20,7 +20,7 @@ fn main() -> std::io::Result<()> {
     std::fs::create_dir_all(dir.join("trust"))?;
     let key = signing_key_from_seed([1; 32]);
     std::fs::write(dir.join("trust/bench.pem"), public_key_to_pem(&key.verifying_key()))?;
-    let w = example_writer(&spec());
+    let w = example_writer(&spec()).map_err(std::io::Error::other)?;
     let w = if uncompressed { w } else { w.zstd(3) };
     let path = dir.join("bench.restage");
     let m = w.write(&key, std::io::BufWriter::new(std::fs::File::create(&path)?)).expect("bundle writes");

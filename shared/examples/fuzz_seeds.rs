@@ -17,7 +17,7 @@ fn main() -> std::io::Result<()> {
     let key = signing_key_from_seed([42; 32]);
     for (name, zstd) in [("plain", false), ("zstd", true)] {
         let spec = ExampleSpec { width: 12, height: 9, step: 3, ..ExampleSpec::small() };
-        let mut w = example_writer(&spec);
+        let mut w = example_writer(&spec).expect("example bundle");
         w.set_preview("original", b"preview".to_vec()).expect("scene exists");
         let w = if zstd { w.zstd(3) } else { w };
         let mut bytes = Vec::new();

@@ -8,10 +8,8 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-use ed25519_dalek::pkcs8::spki::der::pem::LineEnding;
-use ed25519_dalek::pkcs8::{
-    DecodePrivateKey, DecodePublicKey, EncodePrivateKey, EncodePublicKey, KeypairBytes,
-};
+use base64ct::{Base64, Encoding};
+use ed25519_dalek::pkcs8::{DecodePrivateKey, DecodePublicKey};
 pub use ed25519_dalek::{SigningKey, VerifyingKey};
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
@@ -92,16 +90,39 @@ pub fn signing_key_from_seed(seed: [u8; 32]) -> SigningKey {
     SigningKey::from_bytes(&seed)
 }
 
-/// PKCS#8 v1 PEM (`BEGIN PRIVATE KEY`), exactly what `openssl genpkey -algorithm ed25519`
-/// writes.
-pub fn private_key_to_pem(key: &SigningKey) -> String {
-    let kp = KeypairBytes { secret_key: key.to_bytes(), public_key: None };
-    kp.to_pkcs8_pem(LineEnding::LF).expect("an Ed25519 key always encodes").to_string()
+/// DER of an Ed25519 PKCS#8 v1 `PrivateKeyInfo` before its 32 secret bytes (RFC 8410, 7):
+/// SEQUENCE { INTEGER 0, SEQUENCE { OID 1.3.101.112 }, OCTET STRING { OCTET STRING (32) } }.
+const PKCS8_V1_PREFIX: [u8; 16] =
+    [0x30, 0x2e, 0x02, 0x01, 0x00, 0x30, 0x05, 0x06, 0x03, 0x2b, 0x65, 0x70, 0x04, 0x22, 0x04, 0x20];
+/// DER of an Ed25519 `SubjectPublicKeyInfo` before its 32 key bytes (RFC 8410, 4):
+/// SEQUENCE { SEQUENCE { OID 1.3.101.112 }, BIT STRING (no unused bits, 32 bytes) }.
+const SPKI_PREFIX: [u8; 12] = [0x30, 0x2a, 0x30, 0x05, 0x06, 0x03, 0x2b, 0x65, 0x70, 0x03, 0x21, 0x00];
+
+/// `der` as PEM with `label` (RFC 7468: base64 in lines of 64, LF line ends).
+fn pem(label: &str, der: &[u8]) -> String {
+    let mut out = format!("-----BEGIN {label}-----\n");
+    for (i, c) in Base64::encode_string(der).chars().enumerate() {
+        if i > 0 && i % 64 == 0 {
+            out.push('\n');
+        }
+        out.push(c);
+    }
+    out.push_str(&format!("\n-----END {label}-----\n"));
+    out
 }
 
-/// SPKI PEM (`BEGIN PUBLIC KEY`), as `openssl pkey -pubout` writes.
+/// PKCS#8 v1 PEM (`BEGIN PRIVATE KEY`), exactly what `openssl genpkey -algorithm ed25519`
+/// writes. A fixed DER template around the key bytes: it cannot fail.
+pub fn private_key_to_pem(key: &SigningKey) -> String {
+    let der: Vec<u8> = PKCS8_V1_PREFIX.iter().chain(key.as_bytes()).copied().collect();
+    pem("PRIVATE KEY", &der)
+}
+
+/// SPKI PEM (`BEGIN PUBLIC KEY`), as `openssl pkey -pubout` writes. A fixed DER template
+/// around the key bytes: it cannot fail.
 pub fn public_key_to_pem(key: &VerifyingKey) -> String {
-    key.to_public_key_pem(LineEnding::LF).expect("an Ed25519 key always encodes")
+    let der: Vec<u8> = SPKI_PREFIX.iter().chain(key.as_bytes()).copied().collect();
+    pem("PUBLIC KEY", &der)
 }
 
 /// Parses a PKCS#8 PEM private key (v1 or v2). `origin` names the source in errors.
@@ -265,6 +286,19 @@ mod tests {
         assert_ne!(KeyId::of(&signing_key_from_seed([8; 32]).verifying_key()), id);
         assert!(matches!(public_key_from_pem(&pem, Path::new("z")), Err(KeyError::PrivateInTrust { .. })));
         assert!("zz".parse::<KeyId>().is_err());
+    }
+
+    #[test]
+    fn pem_templates_match_the_pkcs8_encoders() {
+        use ed25519_dalek::pkcs8::spki::der::pem::LineEnding;
+        use ed25519_dalek::pkcs8::{EncodePrivateKey, EncodePublicKey, KeypairBytes};
+        for seed in [[0; 32], [7; 32], [0xff; 32], std::array::from_fn(|i| i as u8)] {
+            let k = signing_key_from_seed(seed);
+            let kp = KeypairBytes { secret_key: k.to_bytes(), public_key: None };
+            assert_eq!(private_key_to_pem(&k), kp.to_pkcs8_pem(LineEnding::LF).unwrap().as_str());
+            let public = k.verifying_key().to_public_key_pem(LineEnding::LF).unwrap();
+            assert_eq!(public_key_to_pem(&k.verifying_key()), public);
+        }
     }
 
     #[test]

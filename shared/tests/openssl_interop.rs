@@ -62,7 +62,7 @@ fn openssl_keys_and_signatures_verify_in_restage() {
     // A bundle signed with the OpenSSL-made key; then its signature replaced by the one
     // `openssl pkeyutl -sign -rawin` makes over the same signed bytes.
     let mut bytes = Vec::new();
-    example_writer(&ExampleSpec::small()).write(&private, &mut bytes).unwrap();
+    example_writer(&ExampleSpec::small()).unwrap().write(&private, &mut bytes).unwrap();
     let (signed, id, ours) = split(&bytes);
     assert_eq!(KeyId(id), KeyId::of(&public));
     std::fs::write(d.join("signed.bin"), &signed).unwrap();
@@ -106,7 +106,7 @@ fn openssl_verifies_restage_signatures_and_reads_restage_keys() {
     assert_eq!(std::fs::read_to_string(&public).unwrap(), derived);
 
     let mut bytes = Vec::new();
-    example_writer(&ExampleSpec::small()).write(&key, &mut bytes).unwrap();
+    example_writer(&ExampleSpec::small()).unwrap().write(&key, &mut bytes).unwrap();
     let (signed, _, sig) = split(&bytes);
     std::fs::write(d.join("signed.bin"), &signed).unwrap();
     std::fs::write(d.join("restage.sig"), &sig).unwrap();

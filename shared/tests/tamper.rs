@@ -34,7 +34,7 @@ struct Fixture {
 
 impl Fixture {
     fn new(spec: &ExampleSpec, zstd: bool) -> Self {
-        let mut w = example_writer(spec);
+        let mut w = example_writer(spec).unwrap();
         w.set_preview("original", (0..200u8).collect()).unwrap();
         let w = if zstd { w.zstd(3) } else { w };
         let mut bytes = Vec::new();
@@ -208,7 +208,7 @@ fn swapped_sections_are_refused() {
 fn untrusted_and_unknown_keys_are_refused() {
     let stranger = signing_key_from_seed([7; 32]);
     let mut bytes = Vec::new();
-    example_writer(&ExampleSpec::small()).write(&stranger, &mut bytes).unwrap();
+    example_writer(&ExampleSpec::small()).unwrap().write(&stranger, &mut bytes).unwrap();
     let e = load(&bytes).unwrap_err();
     assert!(
         matches!(e, BundleError::UnknownKey { key_id } if key_id == KeyId::of(&stranger.verifying_key())),
@@ -278,7 +278,7 @@ fn a_validly_signed_scene_over_the_bound_is_refused() {
     // 2 projectors x 40 lx per unit x 1.01 = 80.8 lx at full white; allowed 47.5 lx.
     let spec = ExampleSpec { lux_per_unit: 40.0, ..ExampleSpec::small() };
     let mut bytes = Vec::new();
-    example_writer(&spec).skip_bound_check_for_test_fixtures().write(&key(), &mut bytes).unwrap();
+    example_writer(&spec).unwrap().skip_bound_check_for_test_fixtures().write(&key(), &mut bytes).unwrap();
     // The signature and hashes are fine: open succeeds, the bound check refuses.
     let r = BundleReader::open(Cursor::new(bytes.clone()), &trust(), &VerifyOptions::at(NOW)).unwrap();
     let e = r.verify(|_| Ok(())).unwrap_err();

@@ -31,7 +31,7 @@ fn lying_stage(lie: Lie) -> Stage {
     // The same key the stage trusts (appliance_common signs with seed 7).
     let key = signing_key_from_seed([7; 32]);
     let f = std::fs::File::create(stage.path("state/active.bundle")).unwrap();
-    lying_writer(&ExampleSpec { version: 4, ..ExampleSpec::small() }, lie).write(&key, f).unwrap();
+    lying_writer(&ExampleSpec { version: 4, ..ExampleSpec::small() }, lie).unwrap().write(&key, f).unwrap();
     stage
 }
 

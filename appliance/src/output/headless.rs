@@ -49,11 +49,7 @@ impl HeadlessOutput {
 
 /// `UNIX_US<TAB>BOOT_US`, now.
 fn stamp() -> String {
-    let unix = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_micros())
-        .unwrap_or(0);
-    format!("{unix}\t{}", crate::clock::boot_us())
+    format!("{}\t{}", crate::clock::unix_us(), crate::clock::boot_us())
 }
 
 impl Output for HeadlessOutput {

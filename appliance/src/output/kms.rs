@@ -24,6 +24,7 @@ use drm::control::{
 use thiserror::Error;
 
 use super::{FrameRef, Output, OutputError, check_frames};
+use crate::clock::{monotonic_us, unix_us};
 use crate::input::{InputEvent, InputSender};
 
 /// How long to wait for the flip events of one commit. A real display flips within one
@@ -219,18 +220,6 @@ pub fn frame_fingerprint(xrgb: &[u8]) -> u32 {
         }
     }
     h
-}
-
-/// Microseconds of the wall clock (CLOCK_REALTIME), the clock the ledger's times are in.
-pub fn unix_us() -> u64 {
-    std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_micros() as u64)
-}
-
-/// Microseconds of CLOCK_MONOTONIC, the clock of DRM's flip event timestamps.
-pub fn monotonic_us() -> u64 {
-    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
-        .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
-        .unwrap_or(0)
 }
 
 // ---------------------------------------------------------------------------------------

@@ -67,7 +67,8 @@ pub fn utc(unix_s: i64) -> String {
     format!("{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC", secs / 3600, secs / 60 % 60, secs % 60)
 }
 
-fn hex(b: &[u8]) -> String {
+/// Lowercase hex of `b`, two digits a byte (hashes in summaries, logs and the ledger).
+pub fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }
 

@@ -4,7 +4,7 @@
 //! over the bound on purpose; and correctly signed bundles whose certificate or light model
 //! lies ([`lying_writer`]), which the light check must refuse.
 
-use super::{BundleInfo, BundleWriter, ObjectInfo, PixelFormat, Projector, SceneKind};
+use super::{BundleError, BundleInfo, BundleWriter, ObjectInfo, PixelFormat, Projector, SceneKind};
 use crate::light::{CertificateMap, Footprint, LightCertificate, RESPONSE_LEVELS, example_light_model};
 use crate::policy::{ExposurePolicy, Sensitivity};
 
@@ -116,7 +116,7 @@ pub fn example_info(spec: &ExampleSpec) -> BundleInfo {
 }
 
 /// A writer holding the whole synthetic bundle (scene 0 "original", the rest restorations).
-pub fn example_writer(spec: &ExampleSpec) -> BundleWriter {
+pub fn example_writer(spec: &ExampleSpec) -> Result<BundleWriter, BundleError> {
     let mut w = BundleWriter::new(example_info(spec), example_certificate(spec));
     for s in 0..spec.scenes {
         let frames = (0..spec.projectors).map(|k| example_frame(spec, s, k)).collect();
@@ -125,9 +125,9 @@ pub fn example_writer(spec: &ExampleSpec) -> BundleWriter {
         } else {
             (format!("restored-{s}"), SceneKind::Restoration)
         };
-        w.add_scene(&id, &id, kind, frames).expect("example frames fit");
+        w.add_scene(&id, &id, kind, frames)?;
     }
-    w
+    Ok(w)
 }
 
 /// Ways a signed bundle can lie about its light so that a bright scene is charged little or
@@ -209,12 +209,12 @@ pub fn lying_frames(spec: &ExampleSpec) -> [(&'static str, Vec<Vec<u8>>); 2] {
 /// `lie` says; the writer's own light check is off, so the bundle is correctly signed and
 /// only the reader's check stands between it and the projectors. With honest data these
 /// scenes are within the bound (`spec` as [`ExampleSpec::small`]).
-pub fn lying_writer(spec: &ExampleSpec, lie: Lie) -> BundleWriter {
+pub fn lying_writer(spec: &ExampleSpec, lie: Lie) -> Result<BundleWriter, BundleError> {
     let (info, cert) = lying_parts(spec, lie);
     let mut w = BundleWriter::new(info, cert).skip_bound_check_for_test_fixtures();
     for (id, frames) in lying_frames(spec) {
         let kind = if id == "original" { SceneKind::Original } else { SceneKind::Restoration };
-        w.add_scene(id, id, kind, frames).expect("frames fit");
+        w.add_scene(id, id, kind, frames)?;
     }
-    w
+    Ok(w)
 }

@@ -4,10 +4,61 @@
 //! byte layout around it is in `docs/bundle-format.md`.
 
 use serde::{Deserialize, Serialize};
+use thiserror::Error;
 
 use crate::keys::KeyId;
-use crate::light::LightModel;
-use crate::policy::ExposurePolicy;
+use crate::light::{LightError, LightModel};
+use crate::policy::{ExposurePolicy, PolicyError};
+
+/// Why a manifest is invalid ([`Manifest::validate`]): each variant names the field and, for
+/// ranges, what is accepted.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum ManifestError {
+    #[error("object id {id:?} (expected 1..=64 of [A-Za-z0-9._-])")]
+    ObjectId { id: String },
+    #[error("{field}: {len} bytes of text (expected at most {MAX_TEXT})")]
+    TextTooLong { field: &'static str, len: usize },
+    #[error("not-before {not_before} is not before expiry {expires}")]
+    Validity { not_before: i64, expires: i64 },
+    #[error("{count} projectors (expected 1..={MAX_PROJECTORS})")]
+    ProjectorCount { count: usize },
+    #[error("projector {projector}: {width}x{height} (expected 1..={MAX_SIDE} each side)")]
+    ProjectorSize { projector: usize, width: u32, height: u32 },
+    #[error("projector {projector}: refresh {refresh_mhz} mHz (expected 1000..=1000000)")]
+    Refresh { projector: usize, refresh_mhz: u32 },
+    #[error("projector {projector}: name or connector longer than {MAX_TEXT} bytes")]
+    ProjectorText { projector: usize },
+    #[error("{count} scenes (expected 1..={MAX_SCENES})")]
+    SceneCount { count: usize },
+    #[error("scene {scene}: id {id:?} (expected 1..=64 of [A-Za-z0-9._-])")]
+    SceneId { scene: usize, id: String },
+    #[error("scene {scene}: name of {len} bytes (expected at most {MAX_TEXT})")]
+    SceneName { scene: usize, len: usize },
+    #[error("scene id {id:?} appears twice")]
+    SceneTwice { id: String },
+    #[error("scene {scene}: frame sections {found:?} (expected {expected:?})")]
+    SceneFrames { scene: usize, found: Vec<u32>, expected: Vec<u32> },
+    #[error("scene {scene}: preview section {found} (expected {expected})")]
+    ScenePreview { scene: usize, found: u32, expected: usize },
+    #[error("{found} sections (expected {expected})")]
+    SectionCount { found: usize, expected: usize },
+    #[error("section {section} is {found:?} (expected {expected:?})")]
+    SectionOrder { section: usize, found: SectionKind, expected: SectionKind },
+    #[error("section {section}: {stored_len} bytes stored, {raw_len} raw (at most {max})")]
+    SectionTooLarge { section: usize, stored_len: u64, raw_len: u64, max: u64 },
+    #[error("section {section}: uncompressed but stored {stored_len} != raw {raw_len}")]
+    UncompressedLength { section: usize, stored_len: u64, raw_len: u64 },
+    #[error("section {section}: frame of {found} bytes (expected {expected})")]
+    FrameLength { section: usize, found: u64, expected: u64 },
+    #[error("sections overflow u64")]
+    PayloadOverflow,
+    #[error("light model has {found} projectors (expected {expected})")]
+    LightProjectors { found: usize, expected: usize },
+    #[error(transparent)]
+    Light(#[from] LightError),
+    #[error(transparent)]
+    Policy(#[from] PolicyError),
+}
 
 /// Most projectors in a bundle.
 pub const MAX_PROJECTORS: usize = 8;
@@ -159,44 +210,38 @@ impl Manifest {
     /// Checks everything that can be checked without the payload: ranges, ids, the
     /// canonical section order, frame sizes against projectors, and the light model and
     /// policy. `max_section` caps each section's stored and raw length.
-    pub fn validate(&self, max_section: u64) -> Result<(), String> {
+    pub fn validate(&self, max_section: u64) -> Result<(), ManifestError> {
         if !id_ok(&self.object.id) {
-            return Err(format!("object id {:?} (expected 1..=64 of [A-Za-z0-9._-])", self.object.id));
+            return Err(ManifestError::ObjectId { id: self.object.id.clone() });
         }
-        for t in [&self.object.name, &self.generator] {
+        for (field, t) in [("object name", &self.object.name), ("generator", &self.generator)] {
             if t.len() > MAX_TEXT {
-                return Err(format!("text longer than {MAX_TEXT} bytes"));
+                return Err(ManifestError::TextTooLong { field, len: t.len() });
             }
         }
-        if let (Some(a), Some(b)) = (self.not_before_unix_s, self.expires_unix_s)
-            && a >= b
+        if let (Some(not_before), Some(expires)) = (self.not_before_unix_s, self.expires_unix_s)
+            && not_before >= expires
         {
-            return Err(format!("not-before {a} is not before expiry {b}"));
+            return Err(ManifestError::Validity { not_before, expires });
         }
         let np = self.projectors.len();
         if !(1..=MAX_PROJECTORS).contains(&np) {
-            return Err(format!("{np} projectors (expected 1..={MAX_PROJECTORS})"));
+            return Err(ManifestError::ProjectorCount { count: np });
         }
         for (k, p) in self.projectors.iter().enumerate() {
             if !(1..=MAX_SIDE).contains(&p.width) || !(1..=MAX_SIDE).contains(&p.height) {
-                return Err(format!(
-                    "projector {k}: {}x{} (expected 1..={MAX_SIDE} each side)",
-                    p.width, p.height
-                ));
+                return Err(ManifestError::ProjectorSize { projector: k, width: p.width, height: p.height });
             }
             if !(1_000..=1_000_000).contains(&p.refresh_mhz) {
-                return Err(format!(
-                    "projector {k}: refresh {} mHz (expected 1000..=1000000)",
-                    p.refresh_mhz
-                ));
+                return Err(ManifestError::Refresh { projector: k, refresh_mhz: p.refresh_mhz });
             }
             if p.name.len() > MAX_TEXT || p.connector.as_ref().is_some_and(|c| c.len() > MAX_TEXT) {
-                return Err(format!("projector {k}: name or connector longer than {MAX_TEXT} bytes"));
+                return Err(ManifestError::ProjectorText { projector: k });
             }
         }
         let ns = self.scenes.len();
         if !(1..=MAX_SCENES).contains(&ns) {
-            return Err(format!("{ns} scenes (expected 1..={MAX_SCENES})"));
+            return Err(ManifestError::SceneCount { count: ns });
         }
         let mut expected: Vec<SectionKind> = vec![SectionKind::Certificate];
         for s in 0..ns as u32 {
@@ -205,58 +250,69 @@ impl Manifest {
             }
         }
         for (s, scene) in self.scenes.iter().enumerate() {
-            if !id_ok(&scene.id) || scene.name.len() > MAX_TEXT {
-                return Err(format!("scene {s}: id {:?} (expected 1..=64 of [A-Za-z0-9._-])", scene.id));
+            if !id_ok(&scene.id) {
+                return Err(ManifestError::SceneId { scene: s, id: scene.id.clone() });
+            }
+            if scene.name.len() > MAX_TEXT {
+                return Err(ManifestError::SceneName { scene: s, len: scene.name.len() });
             }
             if self.scenes[..s].iter().any(|o| o.id == scene.id) {
-                return Err(format!("scene id {:?} appears twice", scene.id));
+                return Err(ManifestError::SceneTwice { id: scene.id.clone() });
             }
             let want: Vec<u32> = (0..np).map(|k| self.frame_section_index(s, k) as u32).collect();
             if scene.frames != want {
-                return Err(format!("scene {s}: frame sections {:?} (expected {want:?})", scene.frames));
+                return Err(ManifestError::SceneFrames {
+                    scene: s,
+                    found: scene.frames.clone(),
+                    expected: want,
+                });
             }
             if let Some(p) = scene.preview {
                 if p as usize != expected.len() {
-                    return Err(format!("scene {s}: preview section {p} (expected {})", expected.len()));
+                    return Err(ManifestError::ScenePreview { scene: s, found: p, expected: expected.len() });
                 }
                 expected.push(SectionKind::Preview { scene: s as u32 });
             }
         }
         if self.sections.len() != expected.len() {
-            return Err(format!("{} sections (expected {})", self.sections.len(), expected.len()));
+            return Err(ManifestError::SectionCount { found: self.sections.len(), expected: expected.len() });
         }
         for (i, (sec, want)) in self.sections.iter().zip(&expected).enumerate() {
             if sec.kind != *want {
-                return Err(format!("section {i} is {:?} (expected {want:?})", sec.kind));
+                return Err(ManifestError::SectionOrder { section: i, found: sec.kind, expected: *want });
             }
             if sec.stored_len > max_section || sec.raw_len > max_section {
-                return Err(format!(
-                    "section {i}: {} bytes stored, {} raw (at most {max_section})",
-                    sec.stored_len, sec.raw_len
-                ));
+                return Err(ManifestError::SectionTooLarge {
+                    section: i,
+                    stored_len: sec.stored_len,
+                    raw_len: sec.raw_len,
+                    max: max_section,
+                });
             }
             if sec.compression == Compression::None && sec.stored_len != sec.raw_len {
-                return Err(format!(
-                    "section {i}: uncompressed but stored {} != raw {}",
-                    sec.stored_len, sec.raw_len
-                ));
+                return Err(ManifestError::UncompressedLength {
+                    section: i,
+                    stored_len: sec.stored_len,
+                    raw_len: sec.raw_len,
+                });
             }
             if let SectionKind::Frame { projector, .. } = sec.kind {
                 let want = self.projectors[projector as usize].frame_len();
                 if sec.raw_len != want {
-                    return Err(format!("section {i}: frame of {} bytes (expected {want})", sec.raw_len));
+                    return Err(ManifestError::FrameLength {
+                        section: i,
+                        found: sec.raw_len,
+                        expected: want,
+                    });
                 }
             }
         }
         if self.light.projectors.len() != np {
-            return Err(format!(
-                "light model has {} projectors (expected {np})",
-                self.light.projectors.len()
-            ));
+            return Err(ManifestError::LightProjectors { found: self.light.projectors.len(), expected: np });
         }
-        self.light.validate().map_err(|e| e.to_string())?;
+        self.light.validate()?;
         let ids: Vec<&str> = self.scenes.iter().map(|s| s.id.as_str()).collect();
-        self.policy.validate(&ids).map_err(|e| e.to_string())?;
+        self.policy.validate(&ids)?;
         Ok(())
     }
 
@@ -268,5 +324,45 @@ impl Manifest {
     /// The scene with this id.
     pub fn scene(&self, id: &str) -> Option<(usize, &Scene)> {
         self.scenes.iter().enumerate().find(|(_, s)| s.id == id)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bundle::example::{ExampleSpec, example_writer};
+    use crate::bundle::{BundleError, MAX_SECTION_LEN};
+    use crate::keys::signing_key_from_seed;
+
+    fn manifest() -> Manifest {
+        let key = signing_key_from_seed([3; 32]);
+        example_writer(&ExampleSpec::small()).unwrap().write(&key, Vec::new()).unwrap()
+    }
+
+    #[test]
+    fn validation_names_what_is_wrong() {
+        let good = manifest();
+        good.validate(MAX_SECTION_LEN).unwrap();
+        let refused = |f: &dyn Fn(&mut Manifest)| {
+            let mut m = good.clone();
+            f(&mut m);
+            m.validate(MAX_SECTION_LEN).unwrap_err()
+        };
+        assert_eq!(refused(&|m| m.projectors.clear()), ManifestError::ProjectorCount { count: 0 });
+        let e = refused(&|m| m.scenes[1].id = m.scenes[0].id.clone());
+        assert_eq!(e, ManifestError::SceneTwice { id: "original".into() });
+        let e = refused(&|m| m.projectors[1].refresh_mhz = 5);
+        assert_eq!(e.to_string(), "projector 1: refresh 5 mHz (expected 1000..=1000000)");
+        let e = refused(&|m| m.generator = "g".repeat(MAX_TEXT + 1));
+        assert_eq!(e, ManifestError::TextTooLong { field: "generator", len: MAX_TEXT + 1 });
+        let e = refused(&|m| m.scenes[0].name = "n".repeat(MAX_TEXT + 1));
+        assert_eq!(e, ManifestError::SceneName { scene: 0, len: MAX_TEXT + 1 });
+        let e = refused(&|m| m.sections[1].raw_len += 4);
+        assert!(matches!(e, ManifestError::UncompressedLength { section: 1, .. }), "{e}");
+        let e = refused(&|m| m.policy.max_showing_s = 0);
+        assert!(matches!(e, ManifestError::Policy(_)), "{e}");
+        // In a BundleError the message keeps its prefix.
+        let e = BundleError::from(ManifestError::SceneCount { count: 0 });
+        assert_eq!(e.to_string(), "the manifest is invalid: 0 scenes (expected 1..=64)");
     }
 }

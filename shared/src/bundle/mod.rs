@@ -15,7 +15,7 @@ mod writer;
 
 use std::path::PathBuf;
 
-pub use describe::{BundleFileError, describe, inspect_file, utc, verify_file};
+pub use describe::{BundleFileError, describe, hex, inspect_file, utc, verify_file};
 pub use manifest::*;
 pub use reader::{BundleReader, Limits, VerifiedBundle, VerifiedSection, VerifyOptions};
 use thiserror::Error;
@@ -64,8 +64,10 @@ pub enum BundleError {
     KeyIdMismatch { manifest: KeyId, block: KeyId },
     #[error("the manifest does not decode: {0}")]
     ManifestDecode(String),
+    #[error("the manifest does not encode: {0}")]
+    ManifestEncode(String),
     #[error("the manifest is invalid: {0}")]
-    ManifestInvalid(String),
+    ManifestInvalid(#[from] ManifestError),
     #[error("the bundle is not valid before {not_before} (Unix s); now is {now}")]
     NotYetValid { not_before: i64, now: i64 },
     #[error("the bundle expired at {expires} (Unix s); now is {now}")]

@@ -8,11 +8,11 @@
 
 use std::io::{Read, Seek, SeekFrom};
 
-use ed25519_dalek::Signature;
+use ed25519_dalek::{SIGNATURE_LENGTH, Signature};
 
 use super::{
     BundleError, Compression, FORMAT_VERSION, HEADER_LEN, MAGIC, MAX_MANIFEST_LEN, MAX_SECTION_LEN, Manifest,
-    SIGNATURE_BLOCK_LEN, Section, SectionKind,
+    ManifestError, SIGNATURE_BLOCK_LEN, Section, SectionKind,
 };
 use crate::keys::{KEY_ID_LEN, KeyId, TrustStore};
 use crate::light::{LightCertificate, LightCheck, PeakIrradiance, StageLimits, XrgbFrame};
@@ -119,6 +119,15 @@ fn read_exact_at<R: Read>(
     })
 }
 
+// The signature block is read as its two parts.
+const _: () = assert!(KEY_ID_LEN + SIGNATURE_LENGTH == SIGNATURE_BLOCK_LEN as usize);
+
+/// The `N` bytes of the fixed header from offset `at` (every field lies inside the header,
+/// so the zero fill past its end is never used: this cannot fail).
+fn header_field<const N: usize>(header: &[u8; HEADER_LEN as usize], at: usize) -> [u8; N] {
+    std::array::from_fn(|i| header.get(at + i).copied().unwrap_or(0))
+}
+
 impl<R: Read + Seek> BundleReader<R> {
     /// Reads and checks, in order: header (magic, format, flags, manifest length against the
     /// cap before allocating), the signature over header and manifest with a trusted key
@@ -149,8 +158,8 @@ impl<R: Read + Seek> BundleReader<R> {
         if &header[..8] != MAGIC {
             return Err(BundleError::BadMagic);
         }
-        let u32_at = |o: usize| u32::from_le_bytes(header[o..o + 4].try_into().expect("4 bytes"));
-        let u64_at = |o: usize| u64::from_le_bytes(header[o..o + 8].try_into().expect("8 bytes"));
+        let u32_at = |o: usize| u32::from_le_bytes(header_field(&header, o));
+        let u64_at = |o: usize| u64::from_le_bytes(header_field(&header, o));
         let found = u32_at(8);
         if found != FORMAT_VERSION {
             return Err(BundleError::UnsupportedVersion { found });
@@ -184,14 +193,14 @@ impl<R: Read + Seek> BundleReader<R> {
         let mut signed = vec![0u8; (HEADER_LEN + manifest_len) as usize];
         signed[..HEADER_LEN as usize].copy_from_slice(&header);
         read_exact_at(&mut src, &mut signed[HEADER_LEN as usize..], "the manifest", signed_end, file_len)?;
-        let mut block = [0u8; SIGNATURE_BLOCK_LEN as usize];
-        read_exact_at(&mut src, &mut block, "the signature block", signed_end, file_len)?;
+        // The signature block: key id, then the signature (SIGNATURE_BLOCK_LEN bytes in all).
         let mut id = [0u8; KEY_ID_LEN];
-        id.copy_from_slice(&block[..KEY_ID_LEN]);
+        read_exact_at(&mut src, &mut id, "the signature block", signed_end, file_len)?;
+        let mut sig_bytes = [0u8; SIGNATURE_LENGTH];
+        read_exact_at(&mut src, &mut sig_bytes, "the signature block", signed_end, file_len)?;
         let key_id = KeyId(id);
         if let Some((trust, _)) = auth {
             let trusted = trust.get(&key_id).ok_or(BundleError::UnknownKey { key_id })?;
-            let sig_bytes: [u8; 64] = block[KEY_ID_LEN..].try_into().expect("64 bytes");
             let signature = Signature::from_bytes(&sig_bytes);
             trusted
                 .key
@@ -209,7 +218,7 @@ impl<R: Read + Seek> BundleReader<R> {
         if manifest.key_id != key_id {
             return Err(BundleError::KeyIdMismatch { manifest: manifest.key_id, block: key_id });
         }
-        manifest.validate(limits.max_section).map_err(BundleError::ManifestInvalid)?;
+        manifest.validate(limits.max_section)?;
         if let Some((_, opts)) = auth {
             let now = opts.now_unix_s;
             if let Some(not_before) = manifest.not_before_unix_s
@@ -238,7 +247,7 @@ impl<R: Read + Seek> BundleReader<R> {
             offsets.push(at);
             at = at
                 .checked_add(s.stored_len)
-                .ok_or_else(|| BundleError::ManifestInvalid("sections overflow u64".into()))?;
+                .ok_or(BundleError::ManifestInvalid(ManifestError::PayloadOverflow))?;
             if at > file_len {
                 return Err(BundleError::Truncated {
                     what: format!("section {i} ({:?})", s.kind),
@@ -430,7 +439,7 @@ mod tests {
         let (key, trust) = trust();
         let spec = ExampleSpec::small();
         for zstd in [false, true] {
-            let mut w = example_writer(&spec);
+            let mut w = example_writer(&spec).unwrap();
             w.set_preview("original", b"\x89PNG not really".to_vec()).unwrap();
             let w = if zstd { w.zstd(3) } else { w };
             let mut bytes = Vec::new();
@@ -460,7 +469,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("b.restage");
         let mut bytes = Vec::new();
-        example_writer(&ExampleSpec::small()).write(&key, &mut bytes).unwrap();
+        example_writer(&ExampleSpec::small()).unwrap().write(&key, &mut bytes).unwrap();
         std::fs::write(&path, &bytes).unwrap();
         let f = std::fs::File::open(&path).unwrap();
         let mut v = BundleReader::open(f, &trust, &VerifyOptions::at(0)).unwrap().verify(|_| Ok(())).unwrap();
@@ -494,7 +503,7 @@ mod tests {
                 assert!(sums.lux <= info.light.allowed_lux(), "{lie:?}: {sums:?}");
             }
             let mut bytes = Vec::new();
-            lying_writer(&spec, lie).write(&key, &mut bytes).unwrap();
+            lying_writer(&spec, lie).unwrap().write(&key, &mut bytes).unwrap();
             let err = BundleReader::open(Cursor::new(bytes), &trust, &VerifyOptions::at(1_800_000_000))
                 .and_then(|r| r.verify(|_| Ok(())))
                 .unwrap_err();
@@ -526,7 +535,7 @@ mod tests {
     fn writer_refuses_an_over_bound_scene() {
         let (key, _) = trust();
         let spec = ExampleSpec { lux_per_unit: 40.0, ..ExampleSpec::small() };
-        let err = example_writer(&spec).write(&key, Vec::new()).unwrap_err();
+        let err = example_writer(&spec).unwrap().write(&key, Vec::new()).unwrap_err();
         assert!(matches!(err, BundleError::Light(crate::light::LightError::OverBound { .. })), "{err}");
     }
 }

@@ -214,8 +214,9 @@ impl BundleWriter {
             sections,
             generator: info.generator,
         };
-        manifest.validate(MAX_SECTION_LEN).map_err(BundleError::ManifestInvalid)?;
-        let manifest_bytes = postcard::to_stdvec(&manifest).expect("a manifest always serialises");
+        manifest.validate(MAX_SECTION_LEN)?;
+        let manifest_bytes =
+            postcard::to_stdvec(&manifest).map_err(|e| BundleError::ManifestEncode(e.to_string()))?;
         let mlen = manifest_bytes.len() as u64;
         if mlen > MAX_MANIFEST_LEN {
             return Err(BundleError::ManifestTooLarge { len: mlen, max: MAX_MANIFEST_LEN });
