@@ -63,3 +63,37 @@ pub fn files_under(dir: &Path) -> Vec<PathBuf> {
     out.sort();
     out
 }
+
+/// Writes the virtual bowl's small diffusely lit photo as `photo.png`, picks drawn from its
+/// deteriorated labels as `picks.json`, and its object mask as `mask.png` into `dir`; returns
+/// the dense truth and the picks (for `restage-author classify`).
+pub fn bowl_inputs(
+    dir: &Path,
+) -> (restage_authoring::classify::LabelMap, restage_authoring::classify::Picks) {
+    use restage_authoring::classify::{LabelMap, MASKED, picks_from_labels};
+    use restage_authoring::eval::classify::{PICKS_PER_CLASS, scene_case};
+    let case = scene_case(restage_authoring::stage_sim::SceneName::Bowl, [240, 180], 2).expect("the bowl");
+    let present: Vec<usize> =
+        (0..case.names.len()).filter(|&c| case.truth.data.contains(&(c as u8))).collect();
+    let dense = LabelMap::from_vec(
+        case.truth.width,
+        case.truth.height,
+        case.truth
+            .data
+            .iter()
+            .map(|&l| present.iter().position(|&c| c == l as usize).map_or(MASKED, |d| d as u8))
+            .collect(),
+    )
+    .expect("a label map");
+    let names: Vec<String> = present.iter().map(|&c| case.names[c].clone()).collect();
+    let display: Vec<Option<[u8; 3]>> = present.iter().map(|&c| case.display[c]).collect();
+    let picks = picks_from_labels(&dense, &names, &display, PICKS_PER_CLASS, 1).expect("picks");
+    case.photo.save_linear16(&dir.join("photo.png")).expect("photo written");
+    picks.save(&dir.join("picks.json")).expect("picks written");
+    let mask: Vec<u8> = dense.data.iter().map(|&l| if l == MASKED { 0 } else { 255 }).collect();
+    image::GrayImage::from_raw(dense.width, dense.height, mask)
+        .expect("one byte per pixel")
+        .save(dir.join("mask.png"))
+        .expect("mask written");
+    (dense, picks)
+}

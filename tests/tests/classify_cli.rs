@@ -5,39 +5,11 @@
 
 use std::path::Path;
 
-use restage_authoring::classify::{LabelMap, MASKED, Palette, Picks, picks_from_labels};
-use restage_authoring::eval::classify::{PICKS_PER_CLASS, scene_case};
-use restage_authoring::stage_sim::SceneName;
-use restage_tests::run_author;
+use restage_authoring::classify::{LabelMap, MASKED, Palette, Picks};
+use restage_tests::{bowl_inputs, run_author};
 
 fn stderr(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// Writes `photo.png`, `picks.json` and `mask.png` for the bowl; returns the dense truth and
-/// the picks.
-fn bowl_inputs(dir: &Path) -> (LabelMap, Picks) {
-    let case = scene_case(SceneName::Bowl, [240, 180], 2).unwrap();
-    let present: Vec<usize> =
-        (0..case.names.len()).filter(|&c| case.truth.data.contains(&(c as u8))).collect();
-    let dense = LabelMap::from_vec(
-        case.truth.width,
-        case.truth.height,
-        case.truth
-            .data
-            .iter()
-            .map(|&l| present.iter().position(|&c| c == l as usize).map_or(MASKED, |d| d as u8))
-            .collect(),
-    )
-    .unwrap();
-    let names: Vec<String> = present.iter().map(|&c| case.names[c].clone()).collect();
-    let display: Vec<Option<[u8; 3]>> = present.iter().map(|&c| case.display[c]).collect();
-    let picks = picks_from_labels(&dense, &names, &display, PICKS_PER_CLASS, 1).unwrap();
-    case.photo.save_linear16(&dir.join("photo.png")).unwrap();
-    picks.save(&dir.join("picks.json")).unwrap();
-    let mask: Vec<u8> = dense.data.iter().map(|&l| if l == MASKED { 0 } else { 255 }).collect();
-    image::GrayImage::from_raw(dense.width, dense.height, mask).unwrap().save(dir.join("mask.png")).unwrap();
-    (dense, picks)
 }
 
 fn classify(dir: &Path, picks: &str, out: &str) -> std::process::Output {

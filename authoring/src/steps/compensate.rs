@@ -84,6 +84,9 @@ impl std::fmt::Display for CompensateSummary {
 /// Runs the step as its arguments say.
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<CompensateSummary> {
     let params = params(args)?;
+    if let Some(w) = cie157_warning(params.e_bound_lux) {
+        tracing::warn!("{w}");
+    }
     super::check_out(&args.out, args.force)?;
     progress.stage("loading the stage model");
     let stage = StageModel::load(&args.stage_dir)
@@ -126,9 +129,6 @@ pub fn params(args: &Args) -> Result<Params> {
 /// (the interactive tool keeps both between runs): frames, certificate and report in `args.out`.
 pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<CompensateSummary> {
     let params = params(args)?;
-    if let Some(w) = cie157_warning(params.e_bound_lux) {
-        tracing::warn!("{w}");
-    }
     let restored = restored_path(&args.restored);
     let target = LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
     let comp = compensate::compensate_on(stage, prep, &target, &params, args.device)
