@@ -80,6 +80,10 @@ pub struct GuiArgs {
 }
 
 pub fn run(args: GuiArgs) -> Result<()> {
+    if !args.no_window {
+        // Before any work: simulating a project takes a minute, then the window could not open.
+        check_display()?;
+    }
     let opened = open_or_create(&args)?;
     for p in &opened.problems {
         tracing::warn!("{}: {}", p.path.display(), p.message);
@@ -100,6 +104,35 @@ pub fn run(args: GuiArgs) -> Result<()> {
             "this restage-author was built without the window (feature `gui`); use --no-window --run-missing"
         )
     }
+}
+
+/// Checks that a window can open here: a display server to show it and a Vulkan driver to
+/// draw it (the window draws with wgpu on Vulkan). Names what to do otherwise.
+fn check_display() -> Result<()> {
+    if !cfg!(target_os = "linux") {
+        return Ok(());
+    }
+    let set = |v: &str| std::env::var_os(v).is_some_and(|x| !x.is_empty());
+    if !set("DISPLAY") && !set("WAYLAND_DISPLAY") {
+        bail!(
+            "no display to open the window on (neither DISPLAY nor WAYLAND_DISPLAY is set, as over \
+             SSH or on a server): run the tool on the computer's desktop or with `ssh -X`, or run the \
+             project's steps without a window: --no-window --run-missing"
+        );
+    }
+    let icd_dirs = ["/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d"];
+    let has_driver = set("VK_ICD_FILENAMES")
+        || set("VK_DRIVER_FILES")
+        || icd_dirs.iter().any(|d| std::fs::read_dir(d).is_ok_and(|mut e| e.next().is_some()));
+    if !has_driver {
+        bail!(
+            "no Vulkan driver is installed (nothing in /usr/share/vulkan/icd.d), and the window \
+             draws with Vulkan: install your graphics card's Vulkan driver, or Mesa's for any \
+             computer (`sudo apt-get install mesa-vulkan-drivers` on Debian or Ubuntu); or run the \
+             project's steps without a window: --no-window --run-missing"
+        );
+    }
+    Ok(())
 }
 
 fn open_or_create(args: &GuiArgs) -> Result<Opened> {
