@@ -57,9 +57,8 @@ enum Command {
         /// Folder for the pages (e.g. ~/.local/share/man/man1).
         #[arg(long, default_value = "man")]
         out: std::path::PathBuf,
-        /// Replace pages that are already there.
-        #[arg(long)]
-        force: bool,
+        #[command(flatten)]
+        overwrite: steps::Overwrite,
     },
 }
 
@@ -94,6 +93,6 @@ fn run(command: Command) -> Result<()> {
             clap_complete::generate(shell, &mut Cli::command(), "restage-author", &mut std::io::stdout());
             Ok(())
         }
-        Command::Man { out, force } => cli::man(Cli::command(), &out, force),
+        Command::Man { out, overwrite } => cli::man(Cli::command(), &out, overwrite.force),
     }
 }

@@ -124,7 +124,7 @@ pub fn write_and_verify(project: &Project, settings: &Settings) -> Result<String
         out: out.clone(),
         zstd: 3,
         created: None,
-        force: true,
+        overwrite: crate::steps::Overwrite { force: true },
     })?;
     let trust = project.path(&e.trust);
     let verified = crate::steps::verify::report(&crate::steps::verify::VerifyArgs {

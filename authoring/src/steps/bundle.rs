@@ -20,9 +20,8 @@ pub struct BundleArgs {
     /// Where to write the bundle (written beside it, then renamed into place).
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// zstd level per section (0 stores frames uncompressed).
     #[arg(long, default_value_t = 3)]
     pub zstd: i32,
@@ -33,7 +32,7 @@ pub struct BundleArgs {
 
 /// Signs and writes the bundle `args` describe; returns its manifest.
 pub fn write(args: &BundleArgs) -> Result<restage_shared::bundle::Manifest> {
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     let created = match args.created {
         Some(t) => t,
         None => super::now_unix_s()?,

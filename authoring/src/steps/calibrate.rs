@@ -28,9 +28,8 @@ pub struct CalibrateArgs {
     /// Stage directory to write: stage.bin, stage.json, model.ply, report.png, report.json.
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// The one length that fixes the scale: the distance in millimetres from the camera's
     /// centre of projection (its lens) to the lens of projector --known-projector, measured
     /// with a tape. Everything else is calibrated from the images.
@@ -197,7 +196,7 @@ pub fn run(args: &CalibrateArgs, progress: &dyn Progress) -> Result<GeometryRepo
              a positive number (e.g. 600)"
         );
     }
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     let known = KnownLength::Baseline { projector: args.known_projector, mm: args.known_distance_mm };
     let lux = match (&args.lux_white, &args.lux_file) {
         (Some(text), _) => Some(LuxReadings::parse(text)?),

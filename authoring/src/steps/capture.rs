@@ -20,9 +20,8 @@ pub struct CaptureArgs {
     /// Capture directory to write.
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// The projectors' display outputs in projector order: monitor indices or names
     /// (e.g. `HDMI-1,DP-2,DP-3`). Run with a wrong name to see the list.
     #[arg(long, value_delimiter = ',', required = true)]
@@ -73,7 +72,7 @@ pub fn run(args: &CaptureArgs, progress: &dyn super::Progress) -> Result<Capture
     use restage_authoring::hw::{Rig, SystemClock};
 
     let acq = args.patterns.config(std::time::Duration::from_millis(args.settle_ms))?;
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     let intrinsics = CameraIntrinsics::load(&args.intrinsics)?;
     let mut formats = Vec::new();
     for f in &args.formats {

@@ -24,9 +24,8 @@ pub struct ClassifyArgs {
     /// Output directory (created if missing).
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// Object mask: 8-bit PNG of the photo's size, non-zero = object. Other pixels get label 255.
     #[arg(long)]
     pub mask: Option<PathBuf>,
@@ -73,7 +72,7 @@ impl std::fmt::Display for ClassifySummary {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &ClassifyArgs, progress: &dyn Progress) -> Result<ClassifySummary> {
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     let opts = ClassifyOptions { max_iterations: args.max_iterations, prior_picks: args.prior_picks };
     classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, &opts, progress)
 }

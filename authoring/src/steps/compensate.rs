@@ -42,9 +42,8 @@ pub struct Args {
     /// Output folder for the frames, the certificate and the report.
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
 }
 
 /// Resolves RESTORED: a file, or `restored.png` inside a folder.
@@ -87,7 +86,7 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<CompensateSummary> {
     if let Some(w) = cie157_warning(params.e_bound_lux) {
         tracing::warn!("{w}");
     }
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     progress.stage("loading the stage model");
     let stage = StageModel::load(&args.stage_dir)
         .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;

@@ -19,9 +19,8 @@ pub struct DecodeArgs {
     /// Output folder for proj<k>_x.png, proj<k>_y.png, proj<k>_coverage.png and decode.json.
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// The folder holds a Gray-code sequence in OpenCV structured_light.GrayCodePattern order
     /// (pairs pattern/inverse, MSB first, columns then rows, then white and black), taken in
     /// file-name order.
@@ -61,7 +60,7 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
 /// Runs the step as its arguments say; returns each projector's decode quality (also written
 /// to `decode.json`).
 pub fn run(args: &DecodeArgs, progress: &dyn Progress) -> Result<Vec<DecodeQuality>> {
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut params = if args.opencv_order || args.opencv_thresholds {
         DecodeParams::opencv_defaults()

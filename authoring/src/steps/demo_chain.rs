@@ -159,7 +159,7 @@ pub fn run_chain(
         hints: None,
         picks: Some(picks_path.clone()),
         grid: "auto".into(),
-        force: true,
+        overwrite: super::Overwrite { force: true },
     };
     let rs = super::restore::restore_files(&rargs, progress)?;
     tracing::info!("step 4 restore ({:.1} s): {rs}", at());
@@ -296,7 +296,7 @@ pub fn run_chain(
         out: bundle_path.clone(),
         zstd: 3,
         created: None,
-        force: true,
+        overwrite: super::Overwrite { force: true },
     })?;
     let bundle = format!(
         "{}wrote {}\n",

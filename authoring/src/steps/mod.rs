@@ -42,6 +42,15 @@ impl Progress for Quiet {
     fn count(&self, _: u64, _: u64) {}
 }
 
+/// `--force`, shared by every step that writes: without it a step refuses to write over
+/// what is already there ([`check_out`]).
+#[derive(clap::Args, Debug, Clone, Copy, Default)]
+pub struct Overwrite {
+    /// Replace outputs that already exist (otherwise the step refuses to write over them).
+    #[arg(long)]
+    pub force: bool,
+}
+
 /// Refuses to write at `out` when something is already there, unless `force`: a step never
 /// replaces files silently. A folder may exist if it is empty. With `force` a step replaces
 /// only the files it writes and deletes nothing.

@@ -40,9 +40,8 @@ pub struct Args {
     /// Output PNG (8-bit sRGB); a side-by-side `<name>_compare.png` is written beside it.
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
 }
 
 /// Where one relighting run wrote its image and its before/after comparison.
@@ -60,7 +59,7 @@ impl std::fmt::Display for RelightSummary {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<RelightSummary> {
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     progress.stage("relighting");
     let stage = StageModel::load(&args.stage_dir)
         .with_context(|| format!("loading the stage model from {}", args.stage_dir.display()))?;

@@ -22,9 +22,8 @@ pub struct Args {
     /// Output camera image: 16-bit linear PNG.
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// Also write an 8-bit sRGB version for people to look at.
     #[arg(long)]
     pub preview: Option<PathBuf>,
@@ -85,9 +84,9 @@ impl std::fmt::Display for RenderSummary {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<RenderSummary> {
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     if let Some(p) = &args.preview {
-        super::check_out(p, args.force)?;
+        super::check_out(p, args.overwrite.force)?;
     }
     progress.stage("building the virtual stage");
     let config = stage_sim::load_config(&args.capture)?;

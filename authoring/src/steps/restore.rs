@@ -26,9 +26,8 @@ pub struct RestoreArgs {
     /// Output directory (created if missing).
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// Stop when every contour point's energy is at most alpha (> 0; paper 1..8). Smaller
     /// smooths more: with --scale 10, alpha 2 smooths bends tighter than 5 px radius.
     #[arg(long, default_value_t = 2.0)]
@@ -107,7 +106,7 @@ impl std::fmt::Display for RestoreSummary {
 
 /// Runs the step as its arguments say.
 pub fn run(args: &RestoreArgs, progress: &dyn Progress) -> Result<RestoreSummary> {
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     restore_files(args, progress)
 }
 

@@ -67,9 +67,8 @@ pub struct Args {
     /// Capture directory to write (created if needed; files in it are replaced).
     #[arg(long)]
     pub out: PathBuf,
-    /// Replace outputs that already exist (otherwise the step refuses to write over them).
-    #[arg(long)]
-    pub force: bool,
+    #[command(flatten)]
+    pub overwrite: super::Overwrite,
     /// Camera resolution.
     #[arg(long, default_value = "1024x768")]
     pub camera: Size,
@@ -105,7 +104,7 @@ impl Args {
 /// Runs the step as its arguments say.
 pub fn run(args: &Args, progress: &dyn Progress) -> Result<CaptureManifest> {
     let (scene, acq) = args.configs()?;
-    super::check_out(&args.out, args.force)?;
+    super::check_out(&args.out, args.overwrite.force)?;
     simulate(&scene, &acq, &args.out, progress)
 }
 

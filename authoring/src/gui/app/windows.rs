@@ -123,7 +123,10 @@ impl App {
             ui.end_row();
         });
         if ui.button("make a new key").clicked() {
-            match crate::gui::project::new_key(&self.project, &format!("key-{}", crate::steps::now_unix_s().unwrap_or(0))) {
+            match crate::gui::project::new_key(
+                &self.project,
+                &format!("key-{}", crate::steps::now_unix_s().unwrap_or(0)),
+            ) {
                 Ok((k, t)) => {
                     e.key = k;
                     e.trust = t;
