@@ -277,8 +277,9 @@ impl Alerts {
                 out.push((Level::Critical, Kind::BundleExpiry, "bundle-expiry".into(), message.into()));
             } else if left <= warn {
                 let message = format!(
-                    "the bundle expires in {:.1} days (at {expires} Unix ms): install a renewed one",
-                    left as f64 / DAY_MS as f64
+                    "the bundle expires in {:.1} days (on {}): install a renewed one",
+                    left as f64 / DAY_MS as f64,
+                    restage_shared::time::format_utc(expires.div_euclid(1000))
                 );
                 out.push((Level::Warning, Kind::BundleExpiry, "bundle-expiry".into(), message));
             }

@@ -30,6 +30,12 @@ pub enum ConfigError {
 pub struct Config {
     /// Directory of trusted public keys (`*.pub.pem`, SPKI PEM); several keys allow rotation.
     pub trust_dir: PathBuf,
+    /// Accept bundles signed with the public demo key (`restage_shared::keys::
+    /// demo_signing_key`), whose private half anyone has: only for trying the demo, never for
+    /// an object on show. Default false: such a bundle is refused even when the demo key is
+    /// in `trust_dir`, because then anyone could sign what this stage shows.
+    #[serde(default)]
+    pub allow_demo_key: bool,
     /// Directory for the ledger (`ledger.sqlite`) and the active bundle (`active.bundle`);
     /// systemd's `StateDirectory=` (`/var/lib/restage`).
     pub state_dir: PathBuf,
@@ -564,6 +570,17 @@ mod tests {
         assert_eq!(c.light_check.limits(), StageLimits { max_throw_m: 6.0, min_cos: 0.01 });
         assert_eq!(c.alerts.budget_thresholds, [0.8, 1.0]);
         assert_eq!(c.alerts.expiry_warn_days, 14);
+        assert!(!c.allow_demo_key, "the documented example must not accept the demo key");
+    }
+
+    #[test]
+    fn the_demo_key_is_refused_unless_allowed() {
+        let base = "trust_dir = \"/t\"\nstate_dir = \"/s\"\n";
+        let c = Config::parse(&format!("{base}{WINDOW}"), Path::new("c.toml")).unwrap();
+        assert!(!c.allow_demo_key);
+        let c =
+            Config::parse(&format!("{base}allow_demo_key = true\n{WINDOW}"), Path::new("c.toml")).unwrap();
+        assert!(c.allow_demo_key);
     }
 
     #[test]

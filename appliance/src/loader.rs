@@ -1,8 +1,8 @@
-//! Loading a bundle: signature, validity, version (against the ledger's anti-rollback record)
-//! and every scene's light check — `restage-shared`'s `LightCheck`: every lit pixel vouched
-//! for by the certificate, the peak recomputed from it and held to the bound, with this
-//! stage's `[light_check]` limits — before anything is shown. Only then is the version
-//! recorded.
+//! Loading a bundle: signature, validity, version (against the ledger's anti-rollback record),
+//! the public demo key (refused unless the configuration allows it) and every scene's light
+//! check — `restage-shared`'s `LightCheck`: every lit pixel vouched for by the certificate, the
+//! peak recomputed from it and held to the bound, with this stage's `[light_check]` limits —
+//! before anything is shown. Only then is the version recorded.
 //! Frames are read again (and re-hashed) when needed; the idle scene and the first
 //! restoration stay in memory so a press shows light within a frame.
 //!
@@ -17,9 +17,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use restage_shared::bundle::{BundleError, BundleReader, Limits, VerifiedBundle, VerifyOptions, hex};
-use restage_shared::keys::{KeyError, TrustStore};
+use restage_shared::keys::{KeyError, KeyId, TrustStore, is_demo_key};
 use restage_shared::light::{LightCheck, LightError, StageLimits, XrgbFrame, max_irradiance};
 use restage_shared::policy::IdleMode as PolicyIdle;
+use restage_shared::text::printable;
 use thiserror::Error;
 
 use crate::config::IdleMode;
@@ -37,6 +38,8 @@ pub enum LoadError {
     Refused { path: PathBuf, source: BundleError },
     #[error("bundle {path} refused: {source}")]
     Version { path: PathBuf, source: LedgerError },
+    #[error("bundle {path} refused: {}", demo_key_problem(.key_id))]
+    DemoKey { path: PathBuf, key_id: KeyId },
     #[error("bundle {path} refused: {problem}")]
     Unplayable { path: PathBuf, problem: String },
     #[error(
@@ -115,45 +118,66 @@ impl FrameStore {
     }
 }
 
-/// Verifies everything about the bundle at `path` (signature with a trusted key, validity
-/// at `now_unix_ms`, version against the ledger, every section's hash, every scene's light
-/// check under `stage`); returns it with its identifying hash (hex BLAKE3 of the manifest).
-/// Records nothing.
+/// Why a bundle signed with the public demo key is refused (the configuration's key named).
+fn demo_key_problem(key_id: &KeyId) -> String {
+    format!(
+        "it is signed with the public demo key {key_id}, whose private half anyone has, so anyone \
+         could have made it; set allow_demo_key = true in the configuration only to try the demo, \
+         never for an object on show"
+    )
+}
+
+/// Refuses a bundle signed (the signature already verified) with the public demo key, unless
+/// the configuration's `allow_demo_key` is set.
+pub fn check_demo_key(path: &Path, key_id: KeyId, allow_demo_key: bool) -> Result<(), LoadError> {
+    if is_demo_key(&key_id) && !allow_demo_key {
+        return Err(LoadError::DemoKey { path: path.into(), key_id });
+    }
+    Ok(())
+}
+
+/// Opens the bundle at `path` against the trust directory ([`BundleReader::open`]: header,
+/// signature, validity, version; nothing after the manifest is read) and refuses the public
+/// demo key unless `allow_demo_key`: before anything costly is read.
+pub fn open_trusted(
+    path: &Path,
+    trust_dir: &Path,
+    opts: &VerifyOptions<'_>,
+    allow_demo_key: bool,
+) -> Result<BundleReader<File>, LoadError> {
+    let trust = TrustStore::load_dir(trust_dir)
+        .map_err(|source| LoadError::Trust { dir: trust_dir.into(), source })?;
+    let file = File::open(path).map_err(|source| LoadError::Open { path: path.into(), source })?;
+    let reader = BundleReader::open(file, &trust, opts)
+        .map_err(|source| LoadError::Refused { path: path.into(), source })?;
+    check_demo_key(path, reader.key_id(), allow_demo_key)?;
+    Ok(reader)
+}
+
+/// Verifies everything about the bundle at `path` (signature with a trusted key, the demo
+/// key only if `opts.allow_demo_key`, validity at `now_unix_ms`, version against the ledger,
+/// every section's hash, every scene's light check under `opts.stage`); returns it with its
+/// identifying hash (hex BLAKE3 of the manifest). Refuses, before anything large is decoded,
+/// a bundle whose memory need ([`crate::memory::need`]) exceeds `opts.memory`: an appliance
+/// killed for memory would restart into the same bundle for ever. Records nothing.
 pub fn open_verified(
     path: &Path,
     trust_dir: &Path,
     ledger: &Ledger,
     now_unix_ms: i64,
-    stage: StageLimits,
-) -> Result<(VerifiedBundle<File>, String), LoadError> {
-    open_verified_within(path, trust_dir, ledger, now_unix_ms, stage, None)
-}
-
-/// [`open_verified`], refusing before anything large is decoded a bundle whose memory need
-/// ([`crate::memory::need`]) exceeds `memory: (limit bytes, KMS scan-out buffers)`: an
-/// appliance killed for memory would restart into the same bundle for ever.
-pub fn open_verified_within(
-    path: &Path,
-    trust_dir: &Path,
-    ledger: &Ledger,
-    now_unix_ms: i64,
-    stage: StageLimits,
-    memory: Option<(u64, bool)>,
+    opts: &LoadOptions,
 ) -> Result<(VerifiedBundle<File>, String), LoadError> {
     // The one time of this load: validity is judged against it.
     let now_s = now_unix_ms.div_euclid(1000);
-    let trust = TrustStore::load_dir(trust_dir)
-        .map_err(|source| LoadError::Trust { dir: trust_dir.into(), source })?;
-    let file = File::open(path).map_err(|source| LoadError::Open { path: path.into(), source })?;
     let refused = |source| LoadError::Refused { path: path.into(), source };
     let last = |object: &str| ledger.accepted_version(object).ok().flatten();
-    let opts = VerifyOptions {
+    let verify = VerifyOptions {
         now_unix_s: now_s,
         last_accepted: &last,
-        limits: Limits { stage, ..Limits::default() },
+        limits: Limits { stage: opts.stage, ..Limits::default() },
     };
-    let reader = BundleReader::open(file, &trust, &opts).map_err(refused)?;
-    if let Some((limit, scan_out)) = memory {
+    let reader = open_trusted(path, trust_dir, &verify, opts.allow_demo_key)?;
+    if let Some((limit, scan_out)) = opts.memory {
         let need = crate::memory::need_for_manifest(reader.manifest(), scan_out);
         if need.total_bytes > limit {
             return Err(LoadError::TooLarge {
@@ -224,6 +248,21 @@ pub struct LoadOptions {
     pub memory: Option<(u64, bool)>,
     /// What the light check assumes about this stage (`[light_check]`).
     pub stage: StageLimits,
+    /// Accept the public demo key (`allow_demo_key`).
+    pub allow_demo_key: bool,
+}
+
+impl LoadOptions {
+    /// The configuration's say on loading, without a memory limit.
+    pub fn from_config(config: &crate::config::Config) -> Self {
+        Self {
+            idle: config.player.idle,
+            object_id: config.object_id.clone(),
+            memory: None,
+            stage: config.light_check.limits(),
+            allow_demo_key: config.allow_demo_key,
+        }
+    }
 }
 
 /// Verifies the bundle at `path` and builds what the player needs: the slow half of a load,
@@ -237,7 +276,7 @@ pub fn prepare(
     opts: &LoadOptions,
 ) -> Result<Prepared, LoadError> {
     let (idle, object_id) = (opts.idle, opts.object_id.as_deref());
-    let (bundle, hash) = open_verified_within(path, trust_dir, ledger, now_unix_ms, opts.stage, opts.memory)?;
+    let (bundle, hash) = open_verified(path, trust_dir, ledger, now_unix_ms, opts)?;
     check_object(path, ledger, object_id, &bundle.manifest.object.id)?;
     let m = &bundle.manifest;
     let unplayable = |problem: String| LoadError::Unplayable { path: path.into(), problem };
@@ -387,7 +426,7 @@ pub fn activate(
         })
         .map_err(LoadError::Ledger)?;
     tracing::info!(
-        object = %show.object_id,
+        object = %printable(&show.object_id),
         version = show.version,
         scenes = show.scenes.len(),
         projectors = show.projectors.len(),
@@ -411,8 +450,9 @@ pub fn load(
 }
 
 /// The bundle installed at a path as an operator's `status` describes it: what it is and
-/// whether its header, signature (with a trusted key), validity and version pass now. Cheap:
-/// no section is read (the player verifies everything when it loads the bundle).
+/// whether its header, signature (with a trusted key, the demo key only if allowed), validity
+/// and version pass now. Cheap: no section is read (the player verifies everything when it
+/// loads the bundle).
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Installed {
     pub path: String,
@@ -426,7 +466,13 @@ pub struct Installed {
 }
 
 /// Describes the bundle at `path` (see [`Installed`]) at ledger time `now_unix_ms`.
-pub fn installed(path: &Path, trust_dir: &Path, ledger: &Ledger, now_unix_ms: i64) -> Installed {
+pub fn installed(
+    path: &Path,
+    trust_dir: &Path,
+    allow_demo_key: bool,
+    ledger: &Ledger,
+    now_unix_ms: i64,
+) -> Installed {
     let mut out = Installed {
         path: path.display().to_string(),
         object: None,
@@ -466,6 +512,9 @@ pub fn installed(path: &Path, trust_dir: &Path, ledger: &Ledger, now_unix_ms: i6
     match open().and_then(|f| BundleReader::open(f, &trust, &opts).map_err(|e| e.to_string())) {
         Ok(r) => {
             out.hash = Some(hex(&r.manifest_hash()[..8]));
+            if check_demo_key(path, r.key_id(), allow_demo_key).is_err() {
+                out.problem = Some(demo_key_problem(&r.key_id()));
+            }
         }
         Err(e) => out.problem = Some(e),
     }
@@ -476,7 +525,46 @@ pub fn installed(path: &Path, trust_dir: &Path, ledger: &Ledger, now_unix_ms: i6
 mod tests {
     use super::*;
     use restage_shared::bundle::example::{ExampleSpec, example_writer};
-    use restage_shared::keys::{public_key_to_pem, signing_key_from_seed};
+    use restage_shared::keys::{demo_signing_key, public_key_to_pem, signing_key_from_seed};
+
+    /// A bundle signed with the public demo key, whose public key is in the trust directory,
+    /// is refused unless `allow_demo_key`: the message names the bundle, the key and the
+    /// setting, and nothing is recorded. With the setting it loads like any bundle.
+    #[test]
+    fn the_demo_key_is_refused_unless_allowed() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = demo_signing_key();
+        let trust = dir.path().join("trust");
+        std::fs::create_dir(&trust).unwrap();
+        std::fs::write(trust.join("demo.pub.pem"), public_key_to_pem(&key.verifying_key())).unwrap();
+        let path = dir.path().join("demo.restage");
+        example_writer(&ExampleSpec::small()).unwrap().write(&key, File::create(&path).unwrap()).unwrap();
+        let mut ledger = Ledger::open_in_memory(crate::zone::LocalZone::utc()).unwrap();
+        let now = 1_700_000_100_000;
+        let e = load(&path, &trust, &mut ledger, now, &LoadOptions::default(), |_| Ok(())).err().unwrap();
+        assert!(matches!(e, LoadError::DemoKey { .. }), "{e}");
+        let msg = e.to_string();
+        assert!(
+            msg.contains("demo.restage")
+                && msg.contains("public demo key 719bce2f58d595a5f4b1bab1bdb14de4")
+                && msg.contains("allow_demo_key = true"),
+            "{msg}"
+        );
+        assert_eq!(ledger.accepted_version("test-jar-1").unwrap(), None);
+        let status = installed(&path, &trust, false, &ledger, now);
+        assert!(status.problem.as_deref().is_some_and(|p| p.contains("allow_demo_key")), "{status:?}");
+        assert_eq!(installed(&path, &trust, true, &ledger, now).problem, None);
+
+        let opts = LoadOptions { allow_demo_key: true, ..LoadOptions::default() };
+        load(&path, &trust, &mut ledger, now, &opts, |_| Ok(())).unwrap();
+        assert_eq!(ledger.accepted_version("test-jar-1").unwrap(), Some(3));
+        // Any other trusted key is unaffected by the setting.
+        let other = signing_key_from_seed([3; 32]);
+        std::fs::write(trust.join("k.pem"), public_key_to_pem(&other.verifying_key())).unwrap();
+        let spec = ExampleSpec { version: 4, ..ExampleSpec::small() };
+        example_writer(&spec).unwrap().write(&other, File::create(&path).unwrap()).unwrap();
+        load(&path, &trust, &mut ledger, now, &LoadOptions::default(), |_| Ok(())).unwrap();
+    }
 
     #[test]
     fn a_bundle_the_outputs_cannot_show_does_not_advance_the_accepted_version() {

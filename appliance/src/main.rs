@@ -13,6 +13,7 @@ use restage_appliance::clock::{Clock, LedgerClock, SystemTime, TimeSource};
 use restage_appliance::config::{Config, LEDGER_FILE};
 use restage_appliance::ledger::Ledger;
 use restage_appliance::loader;
+use restage_shared::text::printable;
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
@@ -84,7 +85,8 @@ enum Command {
     },
     /// Verify a bundle (signature, validity, every section, every scene's light check: lit
     /// pixels vouched for by the certificate, peak within the bound) with the same code the
-    /// player loads bundles with.
+    /// player loads bundles with; a bundle signed with the public demo key is refused unless
+    /// --allow-demo-key.
     Verify {
         bundle: PathBuf,
         /// Directory of trusted public keys (*.pem, SPKI).
@@ -96,6 +98,10 @@ enum Command {
         /// As `[light_check] min_cos`.
         #[arg(long, default_value_t = restage_shared::light::DEFAULT_MIN_COS)]
         min_cos: f64,
+        /// Accept a bundle signed with the public demo key, as `allow_demo_key = true` in the
+        /// configuration does (for trying the demo only: anyone can sign with that key).
+        #[arg(long)]
+        allow_demo_key: bool,
     },
 }
 
@@ -134,9 +140,12 @@ fn main() -> Result<()> {
         Command::Run { config } => run(&config.config),
         Command::Status { config, json } => status(&config.config, json),
         Command::Install { bundle, config } => install(&bundle, &config.config),
-        Command::Verify { bundle, trust, max_throw_m, min_cos } => {
-            verify(&bundle, &trust, restage_shared::light::StageLimits { max_throw_m, min_cos })
-        }
+        Command::Verify { bundle, trust, max_throw_m, min_cos, allow_demo_key } => verify(
+            &bundle,
+            &trust,
+            restage_shared::light::StageLimits { max_throw_m, min_cos },
+            allow_demo_key,
+        ),
         Command::Ledger { command: LedgerCommand::Reset { config, reason } }
         | Command::LedgerReset { config, reason } => ledger_reset(&config.config, &reason),
         Command::Identify { config, projector, seconds } => identify(&config.config, projector, seconds),
@@ -150,7 +159,7 @@ fn ledger_export(config: &Path, out: Option<&Path>) -> Result<()> {
     let config = Config::load(config)?;
     let ledger = open_ledger_read_only(&config)?;
     let rows = ledger.history(i64::MIN / 2, i64::MAX / 2)?;
-    let utc = |ms: i64| restage_shared::bundle::utc(ms.div_euclid(1000));
+    let utc = |ms: i64| restage_shared::time::format_utc(ms.div_euclid(1000));
     let zone = config.local_zone();
     let local = |ms: i64| zone.local_time_s(ms);
     match out {
@@ -211,13 +220,18 @@ fn ledger_now(ledger: &Ledger) -> Result<i64> {
     Ok(LedgerClock::new(SystemTime, ledger.high_water_ms()?).now().unix_ms)
 }
 
-fn verify(bundle: &Path, trust: &Path, stage: restage_shared::light::StageLimits) -> Result<()> {
+fn verify(
+    bundle: &Path,
+    trust: &Path,
+    stage: restage_shared::light::StageLimits,
+    allow_demo_key: bool,
+) -> Result<()> {
     // The one time of this load, taken before anything is read.
     let now = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .context("the system clock is before 1970")?
         .as_secs() as i64;
-    print!("{}", restage_appliance::verify::verify_report(bundle, trust, now, stage)?);
+    print!("{}", restage_appliance::verify::verify_report(bundle, trust, now, stage, allow_demo_key)?);
     Ok(())
 }
 
@@ -236,7 +250,8 @@ fn status(config: &Path, json: bool) -> Result<()> {
     let ledger = open_ledger_read_only(&config)?;
     let now = ledger_now(&ledger)?;
     let s = ledger.status(now)?;
-    let installed = loader::installed(&config.bundle_path(), &config.trust_dir, &ledger, now);
+    let installed =
+        loader::installed(&config.bundle_path(), &config.trust_dir, config.allow_demo_key, &ledger, now);
     let mut out = std::io::stdout().lock();
     if json {
         let v = serde_json::json!({ "ledger": s, "installed": installed });
@@ -250,7 +265,7 @@ fn status(config: &Path, json: bool) -> Result<()> {
         Some(a) => writeln!(
             out,
             "playing: {} version {} ({}), since {}",
-            a.object,
+            printable(&a.object),
             a.version,
             &a.bundle_hash[..16.min(a.bundle_hash.len())],
             time(a.loaded_ms)
@@ -261,7 +276,7 @@ fn status(config: &Path, json: bool) -> Result<()> {
         )?,
     }
     let what = match (&installed.object, installed.version) {
-        (Some(o), Some(v)) => format!("{o} version {v}"),
+        (Some(o), Some(v)) => format!("{} version {v}", printable(o)),
         _ => "no readable bundle".to_string(),
     };
     let expiry = match installed.expires_unix_ms {
@@ -277,7 +292,7 @@ fn status(config: &Path, json: bool) -> Result<()> {
     };
     writeln!(out, "installed: {what} at {}; {expiry}", installed.path)?;
     if let Some(p) = &installed.problem {
-        writeln!(out, "  REFUSED: {p}")?;
+        writeln!(out, "  REFUSED: {}", printable(p))?;
     }
     let opening = config.opening_hours().at(now);
     if config.opening_hours().is_scheduled() {
@@ -311,13 +326,13 @@ fn status(config: &Path, json: bool) -> Result<()> {
             "  {} +{:.1} s  {}  (ended by {})",
             time(sh.started_ms),
             (sh.ended_ms - sh.started_ms) as f64 / 1000.0,
-            sh.scenes,
+            printable(&sh.scenes),
             sh.ended_by
         )?;
     }
     writeln!(out, "last events:")?;
     for e in &s.last_events {
-        writeln!(out, "  {} {}: {}", time(e.at_ms), e.kind, e.detail)?;
+        writeln!(out, "  {} {}: {}", time(e.at_ms), e.kind, printable(&e.detail))?;
     }
     Ok(())
 }
@@ -326,13 +341,13 @@ fn install(bundle: &Path, config: &Path) -> Result<()> {
     let config = Config::load(config)?;
     let ledger = Ledger::open_stage(&config.state_dir, config.local_zone().clone())?;
     let now = ledger_now(&ledger)?;
-    let (verified, hash) =
-        loader::open_verified(bundle, &config.trust_dir, &ledger, now, config.light_check.limits())?;
+    let opts = loader::LoadOptions::from_config(&config);
+    let (verified, hash) = loader::open_verified(bundle, &config.trust_dir, &ledger, now, &opts)?;
     loader::check_object(bundle, &ledger, config.object_id.as_deref(), &verified.manifest.object.id)?;
     let m = &verified.manifest;
     eprintln!(
         "verified: {} version {} ({} scenes), manifest {}",
-        m.object.id,
+        printable(&m.object.id),
         m.version,
         m.scenes.len(),
         &hash[..16]
@@ -356,7 +371,7 @@ fn install(bundle: &Path, config: &Path) -> Result<()> {
     }
     // The file now in place must be the one verified (a bundle changed between verify and
     // copy would otherwise slip in): verify the installed copy again.
-    loader::open_verified(&target, &config.trust_dir, &ledger, now, config.light_check.limits())
+    loader::open_verified(&target, &config.trust_dir, &ledger, now, &opts)
         .context("the installed copy does not verify")?;
     eprintln!("installed as {}", target.display());
     if let Some(sock) = &config.inputs.control_socket {

@@ -431,7 +431,7 @@ impl Player {
                 let scene = cycle[0];
                 match self.switch_light(now, Look::Scene(scene), LightKind::Showing, acct, out) {
                     Ok(()) => {
-                        tracing::info!(scene = %show.scenes[scene].id, "showing started");
+                        tracing::info!(scene = %restage_shared::text::printable(&show.scenes[scene].id), "showing started");
                         self.state = State::Showing {
                             scene,
                             started: now,

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
+use restage_shared::text::printable;
 use thiserror::Error;
 use tokio::signal::unix::{SignalKind, signal};
 use tokio::sync::{mpsc, watch};
@@ -254,7 +255,7 @@ impl App {
                 let store = self.store.as_mut().ok_or("no bundle loaded")?;
                 let frames = store
                     .scene(s)
-                    .map_err(|e| format!("bundle frames of scene {}: {e}", show.scenes[s].id))?;
+                    .map_err(|e| format!("bundle frames of scene {}: {e}", printable(&show.scenes[s].id)))?;
                 Ok(LookFrames::Scene(frames))
             }
             Look::Identify(k) => {
@@ -325,11 +326,9 @@ impl App {
     /// `MemoryMax`), so a bundle that would get the appliance killed is refused instead.
     fn load_options(&self) -> loader::LoadOptions {
         loader::LoadOptions {
-            idle: self.config.player.idle,
-            object_id: self.config.object_id.clone(),
             memory: crate::memory::cgroup_limit()
                 .map(|l| (l, matches!(self.config.output, OutputConfig::Kms { .. }))),
-            stage: self.config.light_check.limits(),
+            ..loader::LoadOptions::from_config(&self.config)
         }
     }
 
@@ -382,7 +381,7 @@ impl App {
                     "load",
                     &format!(
                         "{} version {} ({})",
-                        loaded.show.object_id,
+                        printable(&loaded.show.object_id),
                         loaded.show.version,
                         path.display()
                     ),
@@ -694,7 +693,8 @@ impl App {
             && now.unix_ms >= e
             && !matches!(self.player.state(), State::Dark { .. })
         {
-            let msg = format!("bundle expired at {} (Unix ms)", e);
+            let msg =
+                format!("the bundle expired on {}", restage_shared::time::format_utc(e.div_euclid(1000)));
             tracing::error!("{msg}");
             let _ = self.ledger.log_event(now.unix_ms, "refused", &msg);
             self.store = None;

@@ -1,7 +1,8 @@
 //! Ed25519 signing keys in the files `openssl` makes and reads: private keys as PKCS#8 PEM
 //! (`-----BEGIN PRIVATE KEY-----`), public keys as SPKI PEM (`-----BEGIN PUBLIC KEY-----`);
 //! the key id derived from the public key; and the appliance's trust directory, which may
-//! hold several public keys at once so keys can be rotated.
+//! hold several public keys at once so keys can be rotated. Also the one public demo key
+//! ([`demo_signing_key`]), whose private half everyone has.
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -88,6 +89,33 @@ impl FromStr for KeyId {
 /// A signing key from 32 secret bytes (the caller draws them from the OS's random source).
 pub fn signing_key_from_seed(seed: [u8; 32]) -> SigningKey {
     SigningKey::from_bytes(&seed)
+}
+
+/// What the demo key's 32 secret bytes are the BLAKE3 hash of (see [`demo_signing_key`]).
+pub const DEMO_KEY_SEED_TEXT: &str = "restage public demo signing key v1: anyone can sign with it";
+
+/// The demo key's id (`KeyId::of(&demo_signing_key().verifying_key())`), shown as
+/// `719bce2f58d595a5f4b1bab1bdb14de4`.
+pub const DEMO_KEY_ID: KeyId = KeyId(DEMO_KEY_ID_BYTES);
+const DEMO_KEY_ID_BYTES: [u8; KEY_ID_LEN] =
+    [0x71, 0x9b, 0xce, 0x2f, 0x58, 0xd5, 0x95, 0xa5, 0xf4, 0xb1, 0xba, 0xb1, 0xbd, 0xb1, 0x4d, 0xe4];
+
+/// THE PUBLIC DEMO KEY. ITS PRIVATE HALF IS PUBLIC: anyone can compute it from this
+/// documented derivation (secret bytes = BLAKE3 of [`DEMO_KEY_SEED_TEXT`]) and sign any
+/// bundle with it, so a trust directory holding its public key accepts bundles from anyone.
+///
+/// It exists so the demo (`restage-author demo`) and first trials can run end to end without
+/// a key ceremony. Tools say so loudly wherever it appears ([`is_demo_key`]), and the
+/// appliance refuses a bundle signed with it unless its configuration sets
+/// `allow_demo_key = true`. Never use it for an object on show.
+pub fn demo_signing_key() -> SigningKey {
+    SigningKey::from_bytes(blake3::hash(DEMO_KEY_SEED_TEXT.as_bytes()).as_bytes())
+}
+
+/// Whether `id` is the public demo key's ([`demo_signing_key`]): a bundle signed with it
+/// may come from anyone.
+pub fn is_demo_key(id: &KeyId) -> bool {
+    *id == DEMO_KEY_ID
 }
 
 /// DER of an Ed25519 PKCS#8 v1 `PrivateKeyInfo` before its 32 secret bytes (RFC 8410, 7):
@@ -270,6 +298,17 @@ impl TrustStore {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_demo_key_is_the_documented_derivation() {
+        let k = demo_signing_key();
+        assert_eq!(k.to_bytes(), *blake3::hash(DEMO_KEY_SEED_TEXT.as_bytes()).as_bytes());
+        let id = KeyId::of(&k.verifying_key());
+        assert_eq!(id, DEMO_KEY_ID);
+        assert_eq!(DEMO_KEY_ID.to_string(), "719bce2f58d595a5f4b1bab1bdb14de4");
+        assert!(is_demo_key(&id));
+        assert!(!is_demo_key(&KeyId::of(&signing_key_from_seed([7; 32]).verifying_key())));
+    }
 
     #[test]
     fn pem_round_trip_and_key_id() {

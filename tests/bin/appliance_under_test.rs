@@ -24,6 +24,7 @@ fn main() -> ExitCode {
                 Path::new(trust),
                 now,
                 Default::default(),
+                false,
             )
             .map(|report| print!("{report}"))
             .map_err(|e| e.to_string())

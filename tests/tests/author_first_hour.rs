@@ -208,3 +208,67 @@ fn the_window_checks_for_a_display_before_simulating_anything() {
     assert!(t.contains("no display") && t.contains("--no-window"), "{t}");
     assert!(!proj.exists(), "nothing simulated or written");
 }
+
+/// A small bundle signed with the public demo key, valid until 2027-01-15 08:00:00 UTC, and a
+/// trust folder holding the demo key's public half.
+fn demo_signed_bundle(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
+    use restage_shared::bundle::example::{ExampleSpec, example_writer};
+    let spec = ExampleSpec { expires_unix_s: Some(1_800_000_000), ..ExampleSpec::small() };
+    let key = restage_shared::keys::demo_signing_key();
+    let mut bytes = Vec::new();
+    example_writer(&spec).unwrap().write(&key, &mut bytes).unwrap();
+    let bundle = dir.join("demo.restage");
+    std::fs::write(&bundle, &bytes).unwrap();
+    std::fs::create_dir_all(dir.join("keys")).unwrap();
+    let (_, public) = restage_shared::keys::write_keypair(&key, &dir.join("keys/demo")).unwrap();
+    let trust = dir.join("trust");
+    std::fs::create_dir_all(&trust).unwrap();
+    std::fs::copy(public, trust.join("demo.pub.pem")).unwrap();
+    (bundle, trust)
+}
+
+#[test]
+fn verify_speaks_in_dates_and_names_the_demo_key_loudly() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bundle, trust) = demo_signed_bundle(dir.path());
+    let (b, t) = (bundle.to_str().unwrap(), trust.to_str().unwrap());
+    let o = run_author(&["verify", b, "--trust", t, "--now", "2025-01-01"], &[]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = text(&o);
+    assert!(out.contains("DEMO KEY") && out.contains("anyone can sign"), "{out}");
+    assert!(out.contains("valid at 2025-01-01 00:00:00 UTC, until 2027-01-15 08:00:00 UTC"), "{out}");
+
+    let o = run_author(&["verify", b, "--trust", t, "--now", "2027-12-31T10:00:00Z"], &[]);
+    assert!(!o.status.success());
+    let out = text(&o);
+    assert!(out.contains("2027-01-15 08:00:00 UTC") && !out.contains("Unix s"), "{out}");
+
+    let o = run_author(&["verify", b, "--trust", t, "--now", "2025-01-01", "--json"], &[]);
+    assert!(o.status.success(), "{}", text(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!((v["demo_key"].as_bool(), v["authenticated"].as_bool()), (Some(true), Some(true)), "{v}");
+    assert_eq!(v["summary_version"].as_u64(), Some(1));
+
+    // Without a trust folder: inspected, not verified, and it says so.
+    let o = run_author(&["inspect", b], &[]);
+    assert!(o.status.success(), "{}", text(&o));
+    let out = text(&o);
+    assert!(out.contains("NOT CHECKED") && out.contains("DEMO KEY"), "{out}");
+}
+
+#[test]
+fn a_tampered_bundle_is_refused_in_plain_words() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bundle, trust) = demo_signed_bundle(dir.path());
+    let mut bytes = std::fs::read(&bundle).unwrap();
+    let n = bytes.len();
+    bytes[n - 200] ^= 0x55; // inside the last section
+    std::fs::write(&bundle, &bytes).unwrap();
+    let o = run_author(
+        &["verify", bundle.to_str().unwrap(), "--trust", trust.to_str().unwrap(), "--now", "2025-01-01"],
+        &[],
+    );
+    assert!(!o.status.success());
+    let out = text(&o);
+    assert!(out.contains("section") && !out.contains("Frame {") && !out.contains("{ scene"), "{out}");
+}

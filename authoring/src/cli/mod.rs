@@ -151,6 +151,11 @@ pub fn man(command: clap::Command, out: &std::path::Path, force: bool) -> Result
 }
 
 pub fn verify(args: &steps::verify::VerifyArgs) -> Result<()> {
-    print!("{}", steps::verify::report(args)?);
+    let (lines, summary) = steps::verify::verify(args)?;
+    if args.json {
+        println!("{}", summary.to_json()?);
+    } else {
+        print!("{lines}");
+    }
     Ok(())
 }

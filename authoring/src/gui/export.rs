@@ -134,6 +134,7 @@ pub fn write_and_verify(project: &Project, settings: &Settings) -> Result<String
         accepted_version: None,
         max_throw_m: restage_shared::light::DEFAULT_MAX_THROW_M,
         min_cos: restage_shared::light::DEFAULT_MIN_COS,
+        json: false,
     })?;
     Ok(format!("wrote {}\n{}{verified}", out.display(), restage_shared::bundle::describe(&manifest, None)))
 }

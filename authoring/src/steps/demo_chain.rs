@@ -233,7 +233,7 @@ pub fn run_chain(
         comp_dir.join(compensate::io::CERTIFICATE_FILE),
     )?;
 
-    // Step 7: bundle with a demo key (deterministic from the seed; never a production key).
+    // Step 7: bundle with the public demo key (never a production key).
     // Only the demo's own key files are replaced; anything else in keys/ and trust/ stays.
     let keys = out.join("keys");
     let trust = out.join("trust");
@@ -245,10 +245,9 @@ pub fn run_chain(
             std::fs::remove_file(&own).with_context(|| format!("replacing {}", own.display()))?;
         }
     }
-    let mut key_seed = [0u8; 32];
-    key_seed[..8].copy_from_slice(&seed.to_le_bytes());
-    key_seed[8..12].copy_from_slice(b"demo");
-    let key = restage_shared::keys::signing_key_from_seed(key_seed);
+    // The one public demo key: every summary names it, and an appliance refuses it unless
+    // its configuration says `allow_demo_key = true`.
+    let key = restage_shared::keys::demo_signing_key();
     let (private, public) = restage_shared::keys::write_keypair(&key, &keys.join("demo"))?;
     std::fs::copy(&public, trust.join("demo.pub.pem"))?;
     let room = prep.certificate.ambient_lux;
@@ -324,6 +323,7 @@ pub fn run_chain(
         accepted_version: None,
         max_throw_m: restage_shared::light::DEFAULT_MAX_THROW_M,
         min_cos: restage_shared::light::DEFAULT_MIN_COS,
+        json: false,
     })?;
     tracing::info!("step 8 verify ({:.1} s): bundle verified against {}", at(), trust.display());
     log("8 verify      the bundle passes the appliance's checks: signature, hashes, light bound".to_string());

@@ -5,8 +5,10 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use restage_shared::bundle::{Limits, VerifyOptions, verify_file};
+use restage_shared::bundle::{BundleSummary, DEMO_KEY_LINE, Limits, VerifyOptions, verify_file};
 use restage_shared::light::{DEFAULT_MAX_THROW_M, DEFAULT_MIN_COS, StageLimits};
+use restage_shared::text::printable;
+use restage_shared::time::format_utc;
 
 #[derive(Debug, clap::Args)]
 // Negative numbers are values, to be refused with a clear message rather than taken for flags.
@@ -16,8 +18,9 @@ pub struct VerifyArgs {
     /// Directory of trusted public keys (*.pem, SPKI).
     #[arg(long)]
     pub trust: PathBuf,
-    /// Check validity at this Unix time instead of now.
-    #[arg(long)]
+    /// Check validity at this time instead of now: 2027-12-31, 2027-12-31T10:00:00Z or Unix
+    /// seconds (always UTC).
+    #[arg(long, value_parser = parse_time)]
     pub now: Option<i64>,
     /// Refuse versions below this one (as an appliance that accepted it would).
     #[arg(long)]
@@ -28,10 +31,23 @@ pub struct VerifyArgs {
     /// The appliance's `[light_check] min_cos`.
     #[arg(long, default_value_t = DEFAULT_MIN_COS)]
     pub min_cos: f64,
+    /// Print the summary as JSON (versioned: `summary_version`) instead of lines.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// A time on the command line (`--now`): a date, a date and time, or Unix seconds, in UTC.
+pub fn parse_time(text: &str) -> Result<i64, String> {
+    restage_shared::time::parse_instant(text).map_err(|e| e.to_string())
 }
 
 /// Verifies and returns the lines `verify` prints.
 pub fn report(args: &VerifyArgs) -> Result<String> {
+    Ok(verify(args)?.0)
+}
+
+/// Verifies as the appliance would; returns the lines `verify` prints and the summary.
+pub fn verify(args: &VerifyArgs) -> Result<(String, BundleSummary)> {
     use std::fmt::Write as _;
     let now = match args.now {
         Some(t) => t,
@@ -46,21 +62,36 @@ pub fn report(args: &VerifyArgs) -> Result<String> {
         limits: Limits { stage, ..Limits::default() },
     };
     let v = verify_file(&args.bundle, &args.trust, &opts)?;
+    let summary = v.summary();
     let m = &v.manifest;
     let mut out = String::new();
     let _ = writeln!(
         out,
         "OK {}: object {} version {}, {} scenes on {} projectors, signed by key {}",
         args.bundle.display(),
-        m.object.id,
+        printable(&m.object.id),
         m.version,
         m.scenes.len(),
         m.projectors.len(),
         v.key_id
     );
-    for (s, p) in m.scenes.iter().zip(&v.peaks) {
-        let _ =
-            writeln!(out, "  {:<16} peak {:.2} lx (allowed {:.2} lx)", s.id, p.lux, m.light.allowed_lux());
+    if summary.demo_key {
+        let _ = writeln!(out, "  {DEMO_KEY_LINE}");
     }
-    Ok(out)
+    let _ = writeln!(
+        out,
+        "  valid at {}{}",
+        format_utc(now),
+        summary.valid_until_utc.as_ref().map(|t| format!(", until {t}")).unwrap_or_default()
+    );
+    for (s, p) in m.scenes.iter().zip(&v.peaks) {
+        let _ = writeln!(
+            out,
+            "  {:<16} peak {:.2} lx (allowed {:.2} lx)",
+            printable(&s.id),
+            p.lux,
+            m.light.allowed_lux()
+        );
+    }
+    Ok((out, summary))
 }

@@ -1,6 +1,7 @@
-//! Verifying a bundle file against a trust directory, and the human summary that
-//! `restage-author inspect`/`verify` and `restage-appliance verify` print — one
-//! implementation for both binaries.
+//! Verifying a bundle file against a trust directory, inspecting one nobody vouches for, and
+//! the human summary that `restage-author inspect`/`verify` and `restage-appliance verify`
+//! print — one implementation for both binaries. Every name from the bundle is printed
+//! through [`printable`]: the file's author must not be able to write to the terminal.
 
 use std::fmt::Write as _;
 use std::fs::File;
@@ -9,11 +10,18 @@ use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 use super::{
-    BundleError, BundleReader, Compression, Limits, Manifest, SectionKind, VerifiedBundle, VerifyOptions,
+    BundleError, BundleReader, Compression, InspectedBundle, Limits, Manifest, SectionKind, VerifiedBundle,
+    VerifyOptions,
 };
-use crate::keys::{KeyError, TrustStore};
+use crate::keys::{KeyError, TrustStore, is_demo_key};
 use crate::light::{LuxWeighting, PeakIrradiance};
 use crate::policy::IdleMode;
+use crate::text::printable;
+use crate::time::format_utc;
+
+/// Why an inspected bundle's light bound was not checked (its summary says so).
+pub const LIGHT_NOT_CHECKED: &str = "the signature was not verified, and the light check (which unpacks every \
+     frame) runs only on a bundle signed by a trusted key; give a trust directory to check it";
 
 /// A bundle file refused, naming the file.
 #[derive(Debug, Error)]
@@ -40,31 +48,31 @@ pub fn verify_file(
     BundleReader::open(f, &trust, opts).map_err(refused)?.verify(|_| Ok(())).map_err(refused)
 }
 
-/// Like [`verify_file`] without a trust store: for describing a bundle only.
-pub fn inspect_file(path: &Path) -> Result<VerifiedBundle<File>, BundleFileError> {
+/// Describes a bundle file without a trust store, cheaply whoever made it: header and
+/// manifest decoded and validated, every section's hash checked; nothing unpacked, no light
+/// check ([`BundleReader::inspect`]). For describing a bundle only: never play it.
+pub fn inspect_file(path: &Path) -> Result<InspectedBundle, BundleFileError> {
     let f = File::open(path).map_err(|error| BundleFileError::Open { path: path.into(), error })?;
     let refused = |problem| BundleFileError::Refused { path: path.into(), problem };
-    BundleReader::open_unauthenticated(f, Limits::default())
-        .map_err(refused)?
-        .verify(|_| Ok(()))
-        .map_err(refused)
+    BundleReader::open_unauthenticated(f, Limits::default()).and_then(BundleReader::inspect).map_err(refused)
 }
 
-/// `YYYY-MM-DD HH:MM:SS UTC` for Unix seconds (proleptic Gregorian, no time zones).
-pub fn utc(unix_s: i64) -> String {
-    let days = unix_s.div_euclid(86_400);
-    let secs = unix_s.rem_euclid(86_400);
-    // Howard Hinnant's civil_from_days.
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + i64::from(m <= 2);
-    format!("{y:04}-{m:02}-{d:02} {:02}:{:02}:{:02} UTC", secs / 3600, secs / 60 % 60, secs % 60)
+impl InspectedBundle {
+    /// [`describe`] without peaks, then what was and was not checked: the signature, the
+    /// hashes, the light bound (and why not).
+    pub fn describe(&self) -> String {
+        let mut s = describe(&self.manifest, None);
+        let w = &mut s;
+        if self.authenticated {
+            let _ = writeln!(w, "signature verified with key {}", self.key_id);
+        } else {
+            let _ =
+                writeln!(w, "signature NOT CHECKED (no trust directory): anyone could have made this file");
+        }
+        let _ = writeln!(w, "hashes    every section matches the manifest (nothing unpacked)");
+        let _ = writeln!(w, "bound     NOT CHECKED: {LIGHT_NOT_CHECKED}");
+        s
+    }
 }
 
 /// Lowercase hex of `b`, two digits a byte (hashes in summaries, logs and the ledger).
@@ -72,32 +80,46 @@ pub fn hex(b: &[u8]) -> String {
     b.iter().map(|x| format!("{x:02x}")).collect()
 }
 
-/// A multi-line human summary: object, validity, key, projectors, scenes with their peak
-/// lux (when given), light model, policy, sections with hashes.
+/// The line [`describe`] prints under the key id of a bundle signed with the public demo key.
+pub const DEMO_KEY_LINE: &str = "signature DEMO KEY — its private half is public, anyone can sign with it; \
+     for trying restage only, never for an object on show";
+
+/// A multi-line human summary: object, validity, key (loudly, when it is the public demo
+/// key), projectors, scenes with their peak lux (when given), light model, policy, sections
+/// with hashes. Names from the bundle are escaped ([`printable`]).
 pub fn describe(m: &Manifest, peaks: Option<&[PeakIrradiance]>) -> String {
     let mut s = String::new();
     let w = &mut s;
-    let _ = writeln!(w, "object    {} ({}), bundle version {}", m.object.id, m.object.name, m.version);
-    let _ = writeln!(w, "created   {}", utc(m.created_unix_s));
+    let _ = writeln!(
+        w,
+        "object    {} ({}), bundle version {}",
+        printable(&m.object.id),
+        printable(&m.object.name),
+        m.version
+    );
+    let _ = writeln!(w, "created   {}", format_utc(m.created_unix_s));
     let _ = writeln!(
         w,
         "valid     from {} until {}",
-        m.not_before_unix_s.map_or("creation".into(), utc),
-        m.expires_unix_s.map_or("no expiry".into(), utc)
+        m.not_before_unix_s.map_or("creation".into(), format_utc),
+        m.expires_unix_s.map_or("no expiry".into(), format_utc)
     );
     let _ = writeln!(w, "key id    {}", m.key_id);
-    let _ = writeln!(w, "generator {}", m.generator);
+    if is_demo_key(&m.key_id) {
+        let _ = writeln!(w, "{DEMO_KEY_LINE}");
+    }
+    let _ = writeln!(w, "generator {}", printable(&m.generator));
     let _ = writeln!(w, "projectors:");
     for (k, p) in m.projectors.iter().enumerate() {
         let _ = writeln!(
             w,
             "  {k}: {:<10} {}x{} @ {:.3} Hz {:?} connector {}  lux_at_1m {:.1}",
-            p.name,
+            printable(&p.name),
             p.width,
             p.height,
             f64::from(p.refresh_mhz) / 1000.0,
             p.format,
-            p.connector.as_deref().unwrap_or("(any)"),
+            p.connector.as_deref().map_or("(any)".into(), printable),
             m.light.projectors.get(k).map_or(f64::NAN, |l| l.lux_at_1m)
         );
     }
@@ -125,7 +147,13 @@ pub fn describe(m: &Manifest, peaks: Option<&[PeakIrradiance]>) -> String {
             ),
             None => "peak not computed".into(),
         };
-        let _ = writeln!(w, "  {i}: {:<16} {:<12} {:<24} {peak}", sc.id, format!("{:?}", sc.kind), sc.name);
+        let _ = writeln!(
+            w,
+            "  {i}: {:<16} {:<12} {:<24} {peak}",
+            printable(&sc.id),
+            format!("{:?}", sc.kind),
+            printable(&sc.name)
+        );
     }
     let p = &m.policy;
     let _ = writeln!(
@@ -139,7 +167,7 @@ pub fn describe(m: &Manifest, peaks: Option<&[PeakIrradiance]>) -> String {
         match &p.idle {
             IdleMode::ProjectorsOff => "projectors off".to_string(),
             IdleMode::Black => "black (projectors on)".to_string(),
-            IdleMode::Scene(id) => format!("scene {id}"),
+            IdleMode::Scene(id) => format!("scene {}", printable(id)),
         }
     );
     let _ = writeln!(w, "sections:");
@@ -148,11 +176,11 @@ pub fn describe(m: &Manifest, peaks: Option<&[PeakIrradiance]>) -> String {
             SectionKind::Certificate => "light certificate".to_string(),
             SectionKind::Frame { scene, projector } => format!(
                 "frame {} / {}",
-                m.scenes.get(scene as usize).map_or("?", |s| s.id.as_str()),
-                m.projectors.get(projector as usize).map_or("?", |p| p.name.as_str())
+                m.scenes.get(scene as usize).map_or("?".into(), |s| printable(&s.id)),
+                m.projectors.get(projector as usize).map_or("?".into(), |p| printable(&p.name))
             ),
             SectionKind::Preview { scene } => {
-                format!("preview {}", m.scenes.get(scene as usize).map_or("?", |s| s.id.as_str()))
+                format!("preview {}", m.scenes.get(scene as usize).map_or("?".into(), |s| printable(&s.id)))
             }
         };
         let comp = match sec.compression {
@@ -172,12 +200,56 @@ pub fn describe(m: &Manifest, peaks: Option<&[PeakIrradiance]>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bundle::example::{ExampleSpec, example_writer};
+    use crate::keys::{demo_signing_key, signing_key_from_seed};
 
     #[test]
     fn utc_dates() {
-        assert_eq!(utc(0), "1970-01-01 00:00:00 UTC");
-        assert_eq!(utc(951_782_400), "2000-02-29 00:00:00 UTC");
-        assert_eq!(utc(1_767_225_599), "2025-12-31 23:59:59 UTC");
-        assert_eq!(utc(-1), "1969-12-31 23:59:59 UTC");
+        assert_eq!(super::super::utc(0), "1970-01-01 00:00:00 UTC");
+        assert_eq!(super::super::utc(-1), "1969-12-31 23:59:59 UTC");
+    }
+
+    fn manifest(key: &ed25519_dalek::SigningKey) -> Manifest {
+        example_writer(&ExampleSpec::small()).unwrap().write(key, Vec::new()).unwrap()
+    }
+
+    /// A user's report: a crafted object name printed a fake "signature: verified" line over
+    /// the real one. Every bundle-supplied string is escaped.
+    #[test]
+    fn names_from_a_bundle_cannot_write_to_the_terminal() {
+        let evil = "\u{1b}[2K\rsignature: verified";
+        let mut m = manifest(&signing_key_from_seed([1; 32]));
+        m.object.name = evil.into();
+        m.generator = format!("gen{evil}");
+        m.projectors[0].name = format!("p\u{9b}31m{evil}");
+        m.projectors[1].connector = Some(format!("HDMI\u{7}\u{7f}{evil}"));
+        m.scenes[0].name = format!("x\u{202e}gpj.exe\u{2066}{evil}");
+        // Ids are validated to [A-Za-z0-9._-] on open; describe escapes them anyway.
+        m.scenes[1].id = format!("r\n{evil}");
+        m.object.id = format!("o\t{evil}");
+        let out = describe(&m, None);
+        let bad: Vec<char> = out.chars().filter(|&c| c != '\n' && crate::text::is_unsafe(c)).collect();
+        assert!(bad.is_empty(), "{bad:?} in\n{out}");
+        assert_eq!(
+            out.lines().count(),
+            describe(&manifest(&signing_key_from_seed([1; 32])), None).lines().count()
+        );
+        assert!(!out.lines().any(|l| l.starts_with("signature")), "{out}");
+        assert!(out.contains("(\\u{1b}[2K\\rsignature: verified)"), "{out}");
+        assert!(out.contains("x\\u{202e}gpj.exe\\u{2066}"), "{out}");
+        assert!(out.contains("HDMI\\u{7}\\u{7f}"), "{out}");
+        assert!(out.contains("p\\u{9b}31m"), "{out}");
+    }
+
+    #[test]
+    fn the_demo_key_is_said_loudly() {
+        let demo = describe(&manifest(&demo_signing_key()), None);
+        assert!(
+            demo.contains(&format!("key id    {}\n{DEMO_KEY_LINE}\n", crate::keys::DEMO_KEY_ID)),
+            "{demo}"
+        );
+        assert!(DEMO_KEY_LINE.contains("DEMO KEY") && DEMO_KEY_LINE.contains("anyone can sign"));
+        let other = describe(&manifest(&signing_key_from_seed([1; 32])), None);
+        assert!(!other.contains("DEMO"), "{other}");
     }
 }

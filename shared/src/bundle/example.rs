@@ -2,9 +2,18 @@
 //! point `(u, v)` is lit by the same spot of every projector), smooth frames with a little
 //! texture, and a certificate whose coefficients the caller picks so a scene lands under or
 //! over the bound on purpose; and correctly signed bundles whose certificate or light model
-//! lies ([`lying_writer`]), which the light check must refuse.
+//! lies ([`lying_writer`]), which the light check must refuse; and a small file that
+//! inflates to the reader's limits ([`inflating_bundle`]), which inspection must not unpack.
 
-use super::{BundleError, BundleInfo, BundleWriter, ObjectInfo, PixelFormat, Projector, SceneKind};
+use std::io::Write;
+
+use ed25519_dalek::SigningKey;
+
+use super::{
+    BundleError, BundleInfo, BundleWriter, Compression, MAX_SECTION_LEN, Manifest, ObjectInfo, PixelFormat,
+    Projector, Scene, SceneKind, Section, SectionKind,
+};
+use crate::keys::KeyId;
 use crate::light::{CertificateMap, Footprint, LightCertificate, RESPONSE_LEVELS, example_light_model};
 use crate::policy::{ExposurePolicy, Sensitivity};
 
@@ -217,4 +226,115 @@ pub fn lying_writer(spec: &ExampleSpec, lie: Lie) -> Result<BundleWriter, Bundle
         w.add_scene(id, id, kind, frames)?;
     }
     Ok(w)
+}
+
+/// Side of [`inflating_bundle`]'s projectors: a 4096 x 4096 XRGB frame is exactly
+/// [`MAX_SECTION_LEN`] (64 MiB).
+pub const INFLATING_SIDE: u32 = 4096;
+
+/// A correctly signed bundle that is small on disk and as large as the reader's limits allow
+/// once unpacked: 8 projectors of 4096 x 4096, `scenes` scenes (1..=64) of black frames, each
+/// frame a zstd section of about 2.4 KB that decompresses to 64 MiB, and a certificate whose
+/// coverage maps are a byte per projector pixel (128 MiB). With `heavy_certificate` the
+/// certificate has 2^19 points whose blocks read the most pixels the work bound allows
+/// (16 per projector pixel, every scene), stored as a zstd section; without it, one point.
+/// Everything is within the format's limits and the light bound, so a full verification
+/// unpacks and checks it all (64 scenes: 32 GiB of frames). Writes it to `out`; returns its
+/// manifest.
+pub fn inflating_bundle<W: Write>(
+    scenes: usize,
+    heavy_certificate: bool,
+    key: &SigningKey,
+    mut out: W,
+) -> Result<Manifest, BundleError> {
+    const PROJECTORS: usize = 8;
+    let side = INFLATING_SIDE;
+    // One black frame, compressed as a stream so it never exists uncompressed in memory.
+    let mut z = zstd::stream::Encoder::new(Vec::new(), 3)?;
+    z.set_pledged_src_size(Some(MAX_SECTION_LEN))?;
+    z.include_contentsize(true)?;
+    let zeros = vec![0u8; 1 << 20];
+    for _ in 0..MAX_SECTION_LEN >> 20 {
+        z.write_all(&zeros)?;
+    }
+    let frame = z.finish()?;
+    let projectors: Vec<Projector> = (0..PROJECTORS)
+        .map(|k| Projector {
+            name: format!("p{k}"),
+            width: side,
+            height: side,
+            refresh_mhz: 60_000,
+            connector: None,
+            format: PixelFormat::Xrgb8888,
+        })
+        .collect();
+    // Heavy: 16 x 32 blocks on a grid, 2^19 of them: 16 reads per projector pixel in all.
+    let footprints: Vec<Footprint> = if heavy_certificate {
+        (0..1u32 << 19)
+            .map(|i| {
+                let (x0, y0) = ((i % 256 * 16) as u16, (i / 256 % 128 * 32) as u16);
+                Footprint { x0, y0, x1: x0 + 16, y1: y0 + 32, lux_per_unit: 1.0 }
+            })
+            .collect()
+    } else {
+        vec![Footprint::default()]
+    };
+    let raw_certificate = LightCertificate {
+        points: footprints.len() as u32,
+        point_px: vec![],
+        projectors: (0..PROJECTORS)
+            .map(|_| CertificateMap { width: side, height: side, footprints: footprints.clone() })
+            .collect(),
+    }
+    .to_bytes();
+    let (certificate, compression) = if heavy_certificate {
+        (zstd::bulk::compress(&raw_certificate, 19)?, Compression::Zstd)
+    } else {
+        (raw_certificate.clone(), Compression::None)
+    };
+    let section = |kind, bytes: &[u8], compression, raw_len| Section {
+        kind,
+        compression,
+        stored_len: bytes.len() as u64,
+        raw_len,
+        blake3: *blake3::hash(bytes).as_bytes(),
+    };
+    let mut sections =
+        vec![section(SectionKind::Certificate, &certificate, compression, raw_certificate.len() as u64)];
+    for s in 0..scenes as u32 {
+        for k in 0..PROJECTORS as u32 {
+            let kind = SectionKind::Frame { scene: s, projector: k };
+            sections.push(section(kind, &frame, Compression::Zstd, MAX_SECTION_LEN));
+        }
+    }
+    let manifest = Manifest {
+        object: ObjectInfo { id: "inflating-1".into(), name: "Small file, large unpacked".into() },
+        version: 1,
+        created_unix_s: 1_700_000_000,
+        not_before_unix_s: None,
+        expires_unix_s: None,
+        key_id: KeyId::of(&key.verifying_key()),
+        projectors,
+        scenes: (0..scenes)
+            .map(|s| Scene {
+                id: if s == 0 { "original".into() } else { format!("s{s}") },
+                name: format!("black {s}"),
+                kind: if s == 0 { SceneKind::Original } else { SceneKind::Restoration },
+                frames: (0..PROJECTORS).map(|k| (1 + s * PROJECTORS + k) as u32).collect(),
+                preview: None,
+            })
+            .collect(),
+        light: example_light_model(PROJECTORS, 50.0),
+        policy: ExposurePolicy::cie157(Sensitivity::High),
+        sections,
+        generator: "restage-shared example (inflating)".into(),
+    };
+    manifest.validate(MAX_SECTION_LEN)?;
+    super::writer::write_head(&manifest, key, &mut out)?;
+    out.write_all(&certificate)?;
+    for _ in 0..scenes * PROJECTORS {
+        out.write_all(&frame)?;
+    }
+    out.flush()?;
+    Ok(manifest)
 }

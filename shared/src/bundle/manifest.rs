@@ -9,6 +9,8 @@ use thiserror::Error;
 use crate::keys::KeyId;
 use crate::light::{LightError, LightModel};
 use crate::policy::{ExposurePolicy, PolicyError};
+use crate::text::printable;
+use crate::time::format_utc;
 
 /// Why a manifest is invalid ([`Manifest::validate`]): each variant names the field and, for
 /// ranges, what is accepted.
@@ -18,7 +20,7 @@ pub enum ManifestError {
     ObjectId { id: String },
     #[error("{field}: {len} bytes of text (expected at most {MAX_TEXT})")]
     TextTooLong { field: &'static str, len: usize },
-    #[error("not-before {not_before} is not before expiry {expires}")]
+    #[error("valid from {} is not before the expiry {}", format_utc(*.not_before), format_utc(*.expires))]
     Validity { not_before: i64, expires: i64 },
     #[error("{count} projectors (expected 1..={MAX_PROJECTORS})")]
     ProjectorCount { count: usize },
@@ -42,7 +44,7 @@ pub enum ManifestError {
     ScenePreview { scene: usize, found: u32, expected: usize },
     #[error("{found} sections (expected {expected})")]
     SectionCount { found: usize, expected: usize },
-    #[error("section {section} is {found:?} (expected {expected:?})")]
+    #[error("section {section} is the {found} (expected the {expected})")]
     SectionOrder { section: usize, found: SectionKind, expected: SectionKind },
     #[error("section {section}: {stored_len} bytes stored, {raw_len} raw (at most {max})")]
     SectionTooLarge { section: usize, stored_len: u64, raw_len: u64, max: u64 },
@@ -157,6 +159,20 @@ pub enum SectionKind {
     Frame { scene: u32, projector: u32 },
     /// A PNG preview of scene `scene`.
     Preview { scene: u32 },
+}
+
+/// In plain words, without names: "light certificate", "frame of scene 0, projector 1",
+/// "preview of scene 2" ([`Manifest::section_name`] adds the names).
+impl std::fmt::Display for SectionKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SectionKind::Certificate => write!(f, "light certificate"),
+            SectionKind::Frame { scene, projector } => {
+                write!(f, "frame of scene {scene}, projector {projector}")
+            }
+            SectionKind::Preview { scene } => write!(f, "preview of scene {scene}"),
+        }
+    }
 }
 
 /// One payload section. Sections follow the signature block back to back in manifest
@@ -319,6 +335,25 @@ impl Manifest {
     /// Sum of the sections' stored lengths (u64, checked).
     pub fn payload_len(&self) -> Option<u64> {
         self.sections.iter().try_fold(0u64, |a, s| a.checked_add(s.stored_len))
+    }
+
+    /// Section `index` as people know it, for messages: "section 2 (frame of scene 0
+    /// 'restored', projector 1 'left')"; names escaped with [`printable`].
+    pub fn section_name(&self, index: usize) -> String {
+        let scene = |s: u32| match self.scenes.get(s as usize) {
+            Some(sc) => format!("scene {s} '{}'", printable(&sc.id)),
+            None => format!("scene {s}"),
+        };
+        let what = match self.sections.get(index).map(|s| s.kind) {
+            None => return format!("section {index}"),
+            Some(SectionKind::Certificate) => "light certificate".to_string(),
+            Some(SectionKind::Frame { scene: s, projector: k }) => match self.projectors.get(k as usize) {
+                Some(p) => format!("frame of {}, projector {k} '{}'", scene(s), printable(&p.name)),
+                None => format!("frame of {}, projector {k}", scene(s)),
+            },
+            Some(SectionKind::Preview { scene: s }) => format!("preview of {}", scene(s)),
+        };
+        format!("section {index} ({what})")
     }
 
     /// The scene with this id.

@@ -11,18 +11,24 @@ mod describe;
 pub mod example;
 mod manifest;
 mod reader;
+mod summary;
 mod writer;
 
 use std::path::PathBuf;
 
-pub use describe::{BundleFileError, describe, hex, inspect_file, utc, verify_file};
+pub use describe::{
+    BundleFileError, DEMO_KEY_LINE, LIGHT_NOT_CHECKED, describe, hex, inspect_file, verify_file,
+};
 pub use manifest::*;
-pub use reader::{BundleReader, Limits, VerifiedBundle, VerifiedSection, VerifyOptions};
+pub use reader::{BundleReader, InspectedBundle, Limits, VerifiedBundle, VerifiedSection, VerifyOptions};
+pub use summary::*;
 use thiserror::Error;
 pub use writer::{BundleInfo, BundleWriter};
 
-use crate::keys::KeyId;
+use crate::keys::{KeyId, is_demo_key};
 use crate::light::LightError;
+pub use crate::time::format_utc as utc;
+use crate::time::format_utc;
 
 /// First 8 bytes of every bundle.
 pub const MAGIC: &[u8; 8] = b"RSTGBNDL";
@@ -56,7 +62,7 @@ pub enum BundleError {
     Truncated { what: String, need: u64, file_len: u64 },
     #[error("{extra} unexpected bytes after the last section")]
     TrailingBytes { extra: u64 },
-    #[error("signed by key {key_id}, which is not in the trust store")]
+    #[error("signed by key {key_id}{}, which is not in the trust store", demo_note(.key_id))]
     UnknownKey { key_id: KeyId },
     #[error("the signature does not verify with trusted key {key_id} ({origin})")]
     BadSignature { key_id: KeyId, origin: PathBuf },
@@ -68,18 +74,19 @@ pub enum BundleError {
     ManifestEncode(String),
     #[error("the manifest is invalid: {0}")]
     ManifestInvalid(#[from] ManifestError),
-    #[error("the bundle is not valid before {not_before} (Unix s); now is {now}")]
+    #[error("the bundle is not valid before {}; now is {}", format_utc(*.not_before), format_utc(*.now))]
     NotYetValid { not_before: i64, now: i64 },
-    #[error("the bundle expired at {expires} (Unix s); now is {now}")]
+    #[error("the bundle expired on {}; now is {}", format_utc(*.expires), format_utc(*.now))]
     Expired { expires: i64, now: i64 },
     #[error(
         "object {object}: bundle version {version} is lower than the accepted version {accepted} (rollback refused)"
     )]
     Rollback { object: String, version: u64, accepted: u64 },
-    #[error("section {index} ({kind:?}): BLAKE3 hash does not match the manifest")]
-    SectionHash { index: usize, kind: SectionKind },
-    #[error("section {index} ({kind:?}): does not decompress to its {raw_len} bytes ({problem})")]
-    Decompress { index: usize, kind: SectionKind, raw_len: u64, problem: String },
+    /// `section` names it for people ([`Manifest::section_name`]).
+    #[error("{section}: BLAKE3 hash does not match the manifest")]
+    SectionHash { index: usize, section: String },
+    #[error("{section}: does not decompress to its {raw_len} bytes ({problem})")]
+    Decompress { index: usize, section: String, raw_len: u64, problem: String },
     #[error("section {index} changed on disk after it was verified")]
     Changed { index: usize },
     #[error(transparent)]
@@ -88,4 +95,14 @@ pub enum BundleError {
     NoSuchSection { index: usize, count: usize },
     #[error("bundle input: {0}")]
     Input(String),
+    #[error(
+        "the signature was not verified (opened without a trust store): only the section hashes are checked, \
+         the payload is not unpacked and the light check does not run"
+    )]
+    Unauthenticated,
+}
+
+/// " (the public demo key)" for the demo key's id, else nothing.
+fn demo_note(id: &KeyId) -> &'static str {
+    if is_demo_key(id) { " (the public demo key)" } else { "" }
 }

@@ -5,6 +5,11 @@
 //! must vouch for every lit pixel; the peak irradiance is recomputed from it). Memory: the
 //! manifest, the certificate, its coverage maps (a byte per projector pixel), one scene's
 //! per-point sums and one section (stored and decompressed) at a time.
+//!
+//! A file nobody vouches for ([`BundleReader::open_unauthenticated`]) only gets
+//! [`BundleReader::inspect`]: section hashes, nothing decompressed or decoded. Within the
+//! limits a 140 KB file unpacks to gigabytes and a certificate that costs seconds a scene;
+//! that work is for bundles signed by a trusted key.
 
 use std::io::{Read, Seek, SeekFrom};
 
@@ -12,7 +17,7 @@ use ed25519_dalek::{SIGNATURE_LENGTH, Signature};
 
 use super::{
     BundleError, Compression, FORMAT_VERSION, HEADER_LEN, MAGIC, MAX_MANIFEST_LEN, MAX_SECTION_LEN, Manifest,
-    ManifestError, SIGNATURE_BLOCK_LEN, Section, SectionKind,
+    ManifestError, SIGNATURE_BLOCK_LEN, SectionKind,
 };
 use crate::keys::{KEY_ID_LEN, KeyId, TrustStore};
 use crate::light::{LightCertificate, LightCheck, PeakIrradiance, StageLimits, XrgbFrame};
@@ -85,8 +90,9 @@ pub struct VerifiedSection<'a> {
     pub bytes: &'a [u8],
 }
 
-/// A fully verified bundle: manifest, certificate, each scene's recomputed peak, and the
-/// source for reading frames again later (each re-read is hashed again).
+/// A fully verified bundle: signature with a trusted key, validity, version, every section,
+/// every scene's light check. Holds the manifest, certificate, each scene's recomputed peak,
+/// and the source for reading frames again later (each re-read is hashed again).
 #[derive(Debug)]
 pub struct VerifiedBundle<R> {
     pub manifest: Manifest,
@@ -99,12 +105,27 @@ pub struct VerifiedBundle<R> {
     /// with one version have different hashes).
     pub manifest_hash: [u8; 32],
     pub key_id: KeyId,
-    /// True when the signature, validity and version were checked (`open`); false only
-    /// from `open_unauthenticated` (inspection): such a bundle must never be played.
-    pub authenticated: bool,
     src: R,
     offsets: Vec<u64>,
 }
+
+/// A bundle described without its payload ([`BundleReader::inspect`]): header and manifest
+/// decoded and validated, every section's BLAKE3 checked, nothing decompressed or decoded,
+/// no light check.
+#[derive(Clone, Debug)]
+pub struct InspectedBundle {
+    pub manifest: Manifest,
+    /// BLAKE3 of the manifest bytes (as [`VerifiedBundle::manifest_hash`]).
+    pub manifest_hash: [u8; 32],
+    /// The key id in the signature block (equal to the manifest's).
+    pub key_id: KeyId,
+    /// Whether the signature, validity and version were checked (`open`); false from
+    /// `open_unauthenticated`: anyone could have made the file, and it must never be played.
+    pub authenticated: bool,
+}
+
+/// Bytes hashed at a time by [`BundleReader::inspect`].
+const INSPECT_CHUNK: usize = 64 * 1024;
 
 fn read_exact_at<R: Read>(
     src: &mut R,
@@ -113,10 +134,7 @@ fn read_exact_at<R: Read>(
     need: u64,
     file_len: u64,
 ) -> Result<(), BundleError> {
-    src.read_exact(buf).map_err(|e| match e.kind() {
-        std::io::ErrorKind::UnexpectedEof => BundleError::Truncated { what: what.to_owned(), need, file_len },
-        _ => BundleError::Io(e),
-    })
+    src.read_exact(buf).map_err(|e| truncated(e, what.to_owned(), need, file_len))
 }
 
 // The signature block is read as its two parts.
@@ -138,10 +156,10 @@ impl<R: Read + Seek> BundleReader<R> {
         Self::open_inner(src, Some((trust, opts)), opts.limits)
     }
 
-    /// For `inspect` only: reads the header and manifest WITHOUT checking the signature,
-    /// validity or version, so an untrusted bundle can be described. Sections are still
-    /// hash-checked and scenes bound-checked by `verify`, but the result has
-    /// `authenticated == false`: never play it.
+    /// For describing a file only: reads the header and manifest WITHOUT checking the
+    /// signature, validity or version. Such a reader can only be [`inspect`](Self::inspect)ed
+    /// (section hashes); [`verify`](Self::verify) refuses it, so neither the payload nor the
+    /// light check costs anything for a file from anyone.
     pub fn open_unauthenticated(src: R, limits: Limits) -> Result<Self, BundleError> {
         Self::open_inner(src, None, limits)
     }
@@ -249,11 +267,7 @@ impl<R: Read + Seek> BundleReader<R> {
                 .checked_add(s.stored_len)
                 .ok_or(BundleError::ManifestInvalid(ManifestError::PayloadOverflow))?;
             if at > file_len {
-                return Err(BundleError::Truncated {
-                    what: format!("section {i} ({:?})", s.kind),
-                    need: at,
-                    file_len,
-                });
+                return Err(BundleError::Truncated { what: manifest.section_name(i), need: at, file_len });
             }
         }
         if file_len > at {
@@ -282,15 +296,62 @@ impl<R: Read + Seek> BundleReader<R> {
         &self.manifest_hash
     }
 
+    /// The key id in the signature block (equal to the manifest's). Verified with a trusted
+    /// key when the reader came from `open`.
+    pub fn key_id(&self) -> KeyId {
+        self.key_id
+    }
+
+    /// Whether the signature, validity and version were checked (`open`, not
+    /// `open_unauthenticated`).
+    pub fn is_authenticated(&self) -> bool {
+        self.authenticated
+    }
+
+    /// Checks every section's BLAKE3 against the manifest, streaming through a 64 KiB buffer:
+    /// nothing is decompressed or decoded and the light check does not run, so it costs one
+    /// hash pass over the file and no memory beyond the manifest, whoever made the file.
+    pub fn inspect(mut self) -> Result<InspectedBundle, BundleError> {
+        let file_len = self.file_len;
+        self.src.seek(SeekFrom::Start(self.offsets.first().copied().unwrap_or(file_len)))?;
+        let mut buf = vec![0u8; INSPECT_CHUNK];
+        for (i, (s, &at)) in self.manifest.sections.iter().zip(&self.offsets).enumerate() {
+            let mut h = blake3::Hasher::new();
+            let mut left = s.stored_len;
+            while left > 0 {
+                let chunk = &mut buf[..left.min(INSPECT_CHUNK as u64) as usize];
+                let end = at + s.stored_len;
+                let eof = |e| truncated(e, self.manifest.section_name(i), end, file_len);
+                self.src.read_exact(chunk).map_err(eof)?;
+                h.update(chunk);
+                left -= chunk.len() as u64;
+            }
+            if h.finalize().as_bytes() != &s.blake3 {
+                return Err(BundleError::SectionHash { index: i, section: self.manifest.section_name(i) });
+            }
+        }
+        not_grown(&mut self.src, file_len)?;
+        Ok(InspectedBundle {
+            manifest: self.manifest,
+            manifest_hash: self.manifest_hash,
+            key_id: self.key_id,
+            authenticated: self.authenticated,
+        })
+    }
+
     /// Reads every section in order, checks its hash, decompresses it, passes it to `keep`,
     /// decodes and checks the certificate, and refuses any scene that lights a pixel the
     /// certificate does not vouch for or whose recomputed peak irradiance exceeds the light
     /// model's allowed lux ([`LightCheck`], with the stage limits given to `open`). Returns
-    /// the verified bundle only if everything passed.
+    /// the verified bundle only if everything passed. Refuses a reader from
+    /// `open_unauthenticated` before reading anything ([`BundleError::Unauthenticated`]).
     pub fn verify<F>(mut self, mut keep: F) -> Result<VerifiedBundle<R>, BundleError>
     where
         F: FnMut(VerifiedSection<'_>) -> Result<(), BundleError>,
     {
+        if !self.authenticated {
+            return Err(BundleError::Unauthenticated);
+        }
         self.src.seek(SeekFrom::Start(self.offsets.first().copied().unwrap_or(self.file_len)))?;
         let mut stored = Vec::new();
         let mut raw = Vec::new();
@@ -299,11 +360,11 @@ impl<R: Read + Seek> BundleReader<R> {
         let offsets = &self.offsets;
         let read = |src: &mut R, i: usize, stored: &mut Vec<u8>, raw: &mut Vec<u8>| {
             let end = offsets[i] + m.sections[i].stored_len;
-            read_section(src, i, &m.sections[i], end, file_len, stored, raw)
+            read_section(src, m, i, end, file_len, stored, raw)
         };
 
         read(&mut self.src, 0, &mut stored, &mut raw)?;
-        let bytes = section_bytes(&m.sections[0], &stored, &raw);
+        let bytes = section_bytes(m, 0, &stored, &raw);
         let certificate = LightCertificate::from_bytes(bytes)?;
         let sizes: Vec<(u32, u32)> = m.projectors.iter().map(|p| (p.width, p.height)).collect();
         certificate.validate_for(&m.light, &sizes)?;
@@ -317,7 +378,7 @@ impl<R: Read + Seek> BundleReader<R> {
             for (k, p) in m.projectors.iter().enumerate() {
                 let i = m.frame_section_index(s, k);
                 read(&mut self.src, i, &mut stored, &mut raw)?;
-                let bytes = section_bytes(&m.sections[i], &stored, &raw);
+                let bytes = section_bytes(m, i, &stored, &raw);
                 acc.add(k, XrgbFrame { width: p.width, height: p.height, xrgb: bytes })?;
                 keep(VerifiedSection { index: i, kind: m.sections[i].kind, bytes })?;
             }
@@ -326,58 +387,75 @@ impl<R: Read + Seek> BundleReader<R> {
         drop(check);
         for i in m.frame_section_index(m.scenes.len(), 0)..m.sections.len() {
             read(&mut self.src, i, &mut stored, &mut raw)?;
-            let bytes = section_bytes(&m.sections[i], &stored, &raw);
+            let bytes = section_bytes(m, i, &stored, &raw);
             keep(VerifiedSection { index: i, kind: m.sections[i].kind, bytes })?;
         }
-        // The file may not have grown since `open` measured it.
-        let mut probe = [0u8; 1];
-        if self.src.read(&mut probe)? != 0 {
-            let end = self.src.seek(SeekFrom::End(0))?;
-            return Err(BundleError::TrailingBytes { extra: end - self.file_len });
-        }
+        not_grown(&mut self.src, file_len)?;
         Ok(VerifiedBundle {
             manifest: self.manifest,
             certificate,
             peaks,
             manifest_hash: self.manifest_hash,
             key_id: self.key_id,
-            authenticated: self.authenticated,
             src: self.src,
             offsets: self.offsets,
         })
     }
 }
 
-fn section_bytes<'b>(s: &Section, stored: &'b [u8], raw: &'b [u8]) -> &'b [u8] {
-    match s.compression {
+/// Refuses a file that has grown since `open` measured it (read just past the last section).
+fn not_grown<R: Read + Seek>(src: &mut R, file_len: u64) -> Result<(), BundleError> {
+    let mut probe = [0u8; 1];
+    if src.read(&mut probe)? != 0 {
+        let end = src.seek(SeekFrom::End(0))?;
+        return Err(BundleError::TrailingBytes { extra: end.saturating_sub(file_len) });
+    }
+    Ok(())
+}
+
+/// An end of file inside `what` as [`BundleError::Truncated`]; other errors as they are.
+fn truncated(e: std::io::Error, what: String, need: u64, file_len: u64) -> BundleError {
+    match e.kind() {
+        std::io::ErrorKind::UnexpectedEof => BundleError::Truncated { what, need, file_len },
+        _ => BundleError::Io(e),
+    }
+}
+
+fn section_bytes<'b>(m: &Manifest, i: usize, stored: &'b [u8], raw: &'b [u8]) -> &'b [u8] {
+    match m.sections[i].compression {
         Compression::None => stored,
         Compression::Zstd => raw,
     }
 }
 
-/// Reads section `i` from the current position into `stored`, checks its hash, and
+/// Reads section `i` of `m` from the current position into `stored`, checks its hash, and
 /// decompresses it into `raw` when compressed.
 fn read_section<R: Read>(
     src: &mut R,
+    m: &Manifest,
     i: usize,
-    s: &Section,
     end: u64,
     file_len: u64,
     stored: &mut Vec<u8>,
     raw: &mut Vec<u8>,
 ) -> Result<(), BundleError> {
+    let s = &m.sections[i];
     // Lengths were capped by `Manifest::validate` and checked against the file's length.
     stored.clear();
     stored.resize(s.stored_len as usize, 0);
-    read_exact_at(src, stored, &format!("section {i} ({:?})", s.kind), end, file_len)?;
+    src.read_exact(stored).map_err(|e| truncated(e, m.section_name(i), end, file_len))?;
     if blake3::hash(stored).as_bytes() != &s.blake3 {
-        return Err(BundleError::SectionHash { index: i, kind: s.kind });
+        return Err(BundleError::SectionHash { index: i, section: m.section_name(i) });
     }
     if s.compression == Compression::Zstd {
         raw.clear();
         raw.resize(s.raw_len as usize, 0);
-        let bad =
-            |problem: String| BundleError::Decompress { index: i, kind: s.kind, raw_len: s.raw_len, problem };
+        let bad = |problem: String| BundleError::Decompress {
+            index: i,
+            section: m.section_name(i),
+            raw_len: s.raw_len,
+            problem,
+        };
         let n =
             zstd::bulk::decompress_to_buffer(stored, raw.as_mut_slice()).map_err(|e| bad(e.to_string()))?;
         if n as u64 != s.raw_len {
@@ -398,7 +476,7 @@ impl<R: Read + Seek> VerifiedBundle<R> {
         self.src.seek(SeekFrom::Start(self.offsets[index]))?;
         let (mut stored, mut raw) = (Vec::new(), Vec::new());
         let end = self.offsets[index] + s.stored_len;
-        match read_section(&mut self.src, index, &s, end, end, &mut stored, &mut raw) {
+        match read_section(&mut self.src, &self.manifest, index, end, end, &mut stored, &mut raw) {
             Ok(()) => Ok(if s.compression == Compression::None { stored } else { raw }),
             Err(BundleError::SectionHash { .. } | BundleError::Truncated { .. }) => {
                 Err(BundleError::Changed { index })

@@ -215,27 +215,38 @@ impl BundleWriter {
             generator: info.generator,
         };
         manifest.validate(MAX_SECTION_LEN)?;
-        let manifest_bytes =
-            postcard::to_stdvec(&manifest).map_err(|e| BundleError::ManifestEncode(e.to_string()))?;
-        let mlen = manifest_bytes.len() as u64;
-        if mlen > MAX_MANIFEST_LEN {
-            return Err(BundleError::ManifestTooLarge { len: mlen, max: MAX_MANIFEST_LEN });
-        }
-        let mut signed = Vec::with_capacity(HEADER_LEN as usize + manifest_bytes.len());
-        signed.extend_from_slice(MAGIC);
-        signed.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
-        signed.extend_from_slice(&0u32.to_le_bytes());
-        signed.extend_from_slice(&mlen.to_le_bytes());
-        signed.extend_from_slice(&SIGNATURE_BLOCK_LEN.to_le_bytes());
-        signed.extend_from_slice(&manifest_bytes);
-        let signature = key.sign(&signed);
-        out.write_all(&signed)?;
-        out.write_all(&manifest.key_id.0)?;
-        out.write_all(&signature.to_bytes())?;
+        write_head(&manifest, key, &mut out)?;
         for (raw, z) in raws.iter().zip(&compressed) {
             out.write_all(z.as_deref().unwrap_or(raw))?;
         }
         out.flush()?;
         Ok(manifest)
     }
+}
+
+/// Writes the header, `manifest` and the signature block (signed with `key`, whose id the
+/// manifest must carry): everything before the sections.
+pub(crate) fn write_head<W: Write>(
+    manifest: &Manifest,
+    key: &SigningKey,
+    out: &mut W,
+) -> Result<(), BundleError> {
+    let manifest_bytes =
+        postcard::to_stdvec(manifest).map_err(|e| BundleError::ManifestEncode(e.to_string()))?;
+    let mlen = manifest_bytes.len() as u64;
+    if mlen > MAX_MANIFEST_LEN {
+        return Err(BundleError::ManifestTooLarge { len: mlen, max: MAX_MANIFEST_LEN });
+    }
+    let mut signed = Vec::with_capacity(HEADER_LEN as usize + manifest_bytes.len());
+    signed.extend_from_slice(MAGIC);
+    signed.extend_from_slice(&FORMAT_VERSION.to_le_bytes());
+    signed.extend_from_slice(&0u32.to_le_bytes());
+    signed.extend_from_slice(&mlen.to_le_bytes());
+    signed.extend_from_slice(&SIGNATURE_BLOCK_LEN.to_le_bytes());
+    signed.extend_from_slice(&manifest_bytes);
+    let signature = key.sign(&signed);
+    out.write_all(&signed)?;
+    out.write_all(&manifest.key_id.0)?;
+    out.write_all(&signature.to_bytes())?;
+    Ok(())
 }
