@@ -127,15 +127,10 @@ pub fn write_and_verify(project: &Project, settings: &Settings) -> Result<String
         overwrite: crate::steps::Overwrite { force: true },
     })?;
     let trust = project.path(&e.trust);
-    let verified = crate::steps::verify::report(&crate::steps::verify::VerifyArgs {
-        bundle: out.clone(),
+    let verified = crate::steps::verify::report(&crate::steps::verify::VerifyArgs::now_with_defaults(
+        out.clone(),
         trust,
-        now: None,
-        accepted_version: None,
-        max_throw_m: restage_shared::light::DEFAULT_MAX_THROW_M,
-        min_cos: restage_shared::light::DEFAULT_MIN_COS,
-        json: false,
-    })?;
+    ))?;
     Ok(format!("wrote {}\n{}{verified}", out.display(), restage_shared::bundle::describe(&manifest, None)))
 }
 

@@ -316,15 +316,10 @@ pub fn run_chain(
 
     // Step 8: verify as the appliance would (signature, hashes, every scene's light check).
     progress.stage("verifying the bundle");
-    let verified = super::verify::report(&super::verify::VerifyArgs {
-        bundle: bundle_path.clone(),
-        trust: trust.clone(),
-        now: None,
-        accepted_version: None,
-        max_throw_m: restage_shared::light::DEFAULT_MAX_THROW_M,
-        min_cos: restage_shared::light::DEFAULT_MIN_COS,
-        json: false,
-    })?;
+    let verified = super::verify::report(&super::verify::VerifyArgs::now_with_defaults(
+        bundle_path.clone(),
+        trust.clone(),
+    ))?;
     tracing::info!("step 8 verify ({:.1} s): bundle verified against {}", at(), trust.display());
     log("8 verify      the bundle passes the appliance's checks: signature, hashes, light bound".to_string());
 

@@ -36,6 +36,22 @@ pub struct VerifyArgs {
     pub json: bool,
 }
 
+impl VerifyArgs {
+    /// Verification of `bundle` against `trust` now, with the appliance's default limits (as
+    /// the demo and the window run it after signing).
+    pub fn now_with_defaults(bundle: PathBuf, trust: PathBuf) -> VerifyArgs {
+        VerifyArgs {
+            bundle,
+            trust,
+            now: None,
+            accepted_version: None,
+            max_throw_m: DEFAULT_MAX_THROW_M,
+            min_cos: DEFAULT_MIN_COS,
+            json: false,
+        }
+    }
+}
+
 /// A time on the command line (`--now`): a date, a date and time, or Unix seconds, in UTC.
 pub fn parse_time(text: &str) -> Result<i64, String> {
     restage_shared::time::parse_instant(text).map_err(|e| e.to_string())
