@@ -190,6 +190,8 @@ fn no_display_is_a_clear_message() {
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success());
-    assert!(stderr.contains("cannot open the window"), "{stderr}");
+    assert!(stderr.contains("no display") && stderr.contains("--no-window"), "{stderr}");
     assert!(!stderr.contains("panicked"), "{stderr}");
+    // Checked before any work: no project was made.
+    assert!(!tmp.path().join("p").exists());
 }

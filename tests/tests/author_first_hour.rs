@@ -193,22 +193,6 @@ fn completions_and_man_pages_are_written() {
     assert!(out.join("restage-author-compensate.1").is_file());
 }
 
-#[test]
-fn the_window_checks_for_a_display_before_simulating_anything() {
-    let dir = tempfile::tempdir().unwrap();
-    let proj = dir.path().join("proj");
-    let o = std::process::Command::new(restage_tests::author_bin())
-        .args(["gui", proj.to_str().unwrap(), "--new-virtual", "vase"])
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY")
-        .output()
-        .unwrap();
-    assert!(!o.status.success());
-    let t = text(&o);
-    assert!(t.contains("no display") && t.contains("--no-window"), "{t}");
-    assert!(!proj.exists(), "nothing simulated or written");
-}
-
 /// A small bundle signed with the public demo key, valid until 2027-01-15 08:00:00 UTC, and a
 /// trust folder holding the demo key's public half.
 fn demo_signed_bundle(dir: &Path) -> (std::path::PathBuf, std::path::PathBuf) {
