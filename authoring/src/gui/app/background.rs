@@ -6,8 +6,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::App;
-use crate::gui::doc::{Scene, Step, Steps};
 use crate::gui::doc::SceneFigures;
+use crate::gui::doc::{Scene, Step, Steps};
 use crate::gui::jobs::{Msg, Request, Worker};
 use crate::gui::views::ViewKind;
 
