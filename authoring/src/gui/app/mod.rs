@@ -283,7 +283,13 @@ impl eframe::App for App {
         egui::Panel::left("tools").frame(panel_frame(ui)).resizable(true).default_size(300.0).show(
             ui,
             |ui| {
-                egui::ScrollArea::vertical().auto_shrink([false, false]).show(ui, |ui| self.side_panel(ui));
+                // A solid, always shown scroll bar: egui's floating one appears only on hover, so
+                // a panel taller than the window looked cut off rather than scrollable.
+                ui.style_mut().spacing.scroll = egui::style::ScrollStyle::solid();
+                egui::ScrollArea::vertical()
+                    .auto_shrink([false, false])
+                    .scroll_bar_visibility(egui::scroll_area::ScrollBarVisibility::AlwaysVisible)
+                    .show(ui, |ui| self.side_panel(ui));
             },
         );
         egui::CentralPanel::default()

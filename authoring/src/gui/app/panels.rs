@@ -8,7 +8,7 @@ use restage_authoring::relight::Light;
 use super::canvas::Shown;
 use super::tools::Tool;
 use super::{App, REDO, SAVE, UNDO};
-use crate::gui::doc::{HintDiff, RegionSpec, Scene, Steps, directional, light_angles, new_class};
+use crate::gui::doc::{HintDiff, RegionSpec, Scene, Small, Steps, directional, light_angles, new_class};
 use crate::gui::views::ViewKind;
 
 impl App {
@@ -103,6 +103,7 @@ impl App {
     }
 
     pub(super) fn side_panel(&mut self, ui: &mut egui::Ui) {
+        self.first_step_ui(ui);
         ui.heading("Tools");
         ui.horizontal_wrapped(|ui| {
             for (t, name, tip) in [
@@ -121,7 +122,8 @@ impl App {
                 egui::Slider::new(&mut self.tools.brush, 0.5..=64.0)
                     .logarithmic(true)
                     .text("brush radius px"),
-            );
+            )
+            .on_hover_text("Radius of the hint brush and the eraser, in photo pixels.");
             ui.horizontal(|ui| {
                 ui.checkbox(&mut self.view.show_hints, "show strokes");
                 if ui.button("clear strokes").clicked() && !self.doc.hints.is_empty() {
@@ -144,6 +146,32 @@ impl App {
         self.figures_ui(ui);
     }
 
+    /// One line on what to do first, while the project lacks picks or outputs: a new user
+    /// otherwise meets a panel of parameters and no way in.
+    fn first_step_ui(&mut self, ui: &mut egui::Ui) {
+        // Only when idle and nothing failed: running steps are on their way, a failure has
+        // its own Retry in the status line.
+        let missing = if self.jobs.running.is_none() && self.jobs.failed.is_none() {
+            self.project.missing_steps(&self.doc.small)
+        } else {
+            Steps::NONE
+        };
+        let Some(hint) = first_step(&self.doc.small, missing) else { return };
+        let text = egui::RichText::new(hint).color(Color32::from_rgb(255, 210, 120));
+        ui.add(egui::Label::new(text).wrap());
+        if !missing.is_empty()
+            && ui
+                .button("Run them")
+                .on_hover_text(
+                    "Compute what is missing; after this, every change recomputes what it affects.",
+                )
+                .clicked()
+        {
+            self.submit(missing.with_dependents(), None);
+        }
+        ui.separator();
+    }
+
     fn classes_ui(&mut self, ui: &mut egui::Ui) {
         ui.heading("Colour classes");
         let colours = self.textures.colours.clone();
@@ -161,7 +189,9 @@ impl App {
                 {
                     self.tools.class = i;
                 }
-                ui.add(egui::TextEdit::singleline(&mut c.name).desired_width(90.0));
+                // Narrower than the names need at most, so the row (with "N picks") fits the
+                // default panel width.
+                ui.add(egui::TextEdit::singleline(&mut c.name).desired_width(72.0));
                 let mut restored = c.display_srgb8.is_some();
                 if ui
                     .checkbox(&mut restored, "")
@@ -186,7 +216,13 @@ impl App {
                         w.settings.restore.loss.sort_unstable();
                     }
                 }
-                ui.weak(format!("{}", c.pixels.len() + c.rects.len()));
+                let (px, rects) = (c.pixels.len(), c.rects.len());
+                ui.weak(format!("{} picks", px + rects)).on_hover_text(format!(
+                    "What teaches the classifier this colour: {px} picked pixel{} and {rects} \
+                     rectangle{}. Add more with the pick tool (click, or shift-drag a rectangle).",
+                    plural(px),
+                    plural(rects)
+                ));
                 if ui.small_button("×").on_hover_text("remove this class").clicked() {
                     remove = Some(i);
                 }
@@ -215,8 +251,17 @@ impl App {
         ui.collapsing("classification", |ui| {
             ui.add(
                 egui::Slider::new(&mut w.settings.classify.max_iterations, 1..=50).text("k-means iterations"),
+            )
+            .on_hover_text(
+                "Most k-means rounds (--max-iterations). 1: each pixel takes the nearest picked \
+                 colour (measured best on the virtual stage); 50: k-means to convergence, as in the paper.",
             );
-            ui.add(egui::Slider::new(&mut w.settings.classify.prior_picks, 0.0..=50.0).text("prior picks"));
+            ui.add(egui::Slider::new(&mut w.settings.classify.prior_picks, 0.0..=50.0).text("prior picks"))
+                .on_hover_text(
+                    "How many picks' worth of the plain colour distance each colour's own spread \
+                     (from its picks) is pulled towards (--prior-picks). Larger: the picks' spread \
+                     counts less.",
+                );
         });
     }
 
@@ -256,22 +301,53 @@ impl App {
             egui::Slider::new(&mut s.restore.alpha, 0.25..=16.0)
                 .logarithmic(true)
                 .text("alpha (stop energy)"),
+        )
+        .on_hover_text(
+            "Contours are smoothed until no point's bending energy is above alpha (--alpha, > 0; \
+             paper 1 to 8). Smaller smooths more: with scale 10 px, alpha 2 smooths bends tighter \
+             than a 5 px radius.",
         );
-        ui.add(egui::Slider::new(&mut s.restore.beta, 1.0..=16.0).logarithmic(true).text("beta (spacing)"));
+        ui.add(egui::Slider::new(&mut s.restore.beta, 1.0..=16.0).logarithmic(true).text("beta (spacing)"))
+            .on_hover_text(
+                "How strongly contours keep their spacing to neighbouring contours (--beta, at least 1; \
+                 paper 1.5 to 8).",
+            );
         ui.horizontal(|ui| {
             let mut on = s.restore.gamma.is_some();
-            if ui.checkbox(&mut on, "gamma").changed() {
+            if ui
+                .checkbox(&mut on, "gamma")
+                .on_hover_text(
+                    "Restore within what the projectors can show (--gamma): no pixel may get brighter \
+                     than its original class by more than the set amount.",
+                )
+                .changed()
+            {
                 s.restore.gamma = on.then_some(0.05);
             }
             if let Some(g) = &mut s.restore.gamma {
-                ui.add(egui::Slider::new(g, 0.0..=1.0).text("max brightening"));
+                ui.add(egui::Slider::new(g, 0.0..=1.0).text("max brightening")).on_hover_text(
+                    "Largest brightening allowed, in relative luminance (a fraction, 0 to 1).",
+                );
             }
         });
-        ui.add(egui::Slider::new(&mut s.restore.neighbours, 1..=12).text("neighbours"));
-        ui.add(egui::Slider::new(&mut s.restore.scale, 1.0..=40.0).text("scale px"));
+        ui.add(egui::Slider::new(&mut s.restore.neighbours, 1..=12).text("neighbours")).on_hover_text(
+            "Contour segments on each side whose directions are averaged for the curvature \
+             (--neighbours). More: the curvature is measured over a longer stretch.",
+        );
+        ui.add(egui::Slider::new(&mut s.restore.scale, 1.0..=40.0).text("scale px")).on_hover_text(
+            "Length unit of the curvature, in pixels (--scale): a circle of radius r has curvature \
+             scale / r.",
+        );
         ui.horizontal(|ui| {
             let mut auto = s.restore.grid == "auto";
-            if ui.checkbox(&mut auto, "grid auto").changed() {
+            if ui
+                .checkbox(&mut auto, "grid auto")
+                .on_hover_text(
+                    "The photo is restored in a grid of cells (--grid): auto makes cells of about \
+                     256 px; untick to set the cells across x down.",
+                )
+                .changed()
+            {
                 s.restore.grid = if auto { "auto".into() } else { "4x4".into() };
             }
             if !auto {
@@ -280,9 +356,9 @@ impl App {
                     .grid
                     .split_once('x')
                     .map_or((4u32, 4u32), |(a, b)| (a.parse().unwrap_or(4), b.parse().unwrap_or(4)));
-                ui.add(egui::DragValue::new(&mut g).range(1..=256));
+                ui.add(egui::DragValue::new(&mut g).range(1..=256)).on_hover_text("Grid cells across.");
                 ui.label("x");
-                ui.add(egui::DragValue::new(&mut h).range(1..=256));
+                ui.add(egui::DragValue::new(&mut h).range(1..=256)).on_hover_text("Grid cells down.");
                 s.restore.grid = format!("{g}x{h}");
             }
         });
@@ -291,18 +367,36 @@ impl App {
             egui::Slider::new(&mut s.compensate.e_bound_lux, 5.0..=1000.0)
                 .logarithmic(true)
                 .text("E_bound lux"),
+        )
+        .on_hover_text(
+            "Most light the projectors may put on the object, in lux (--ebound-lux). CIE 157 \
+             recommends at most 50 lx for light-sensitive objects.",
         );
         ui.horizontal(|ui| {
             let mut inf = s.compensate.m.is_none();
-            if ui.checkbox(&mut inf, "m = ∞").changed() {
+            if ui
+                .checkbox(&mut inf, "m = ∞")
+                .on_hover_text("m = ∞: each point is lit by its most efficient projector only (--m inf).")
+                .changed()
+            {
                 s.compensate.m = if inf { None } else { Some(8.0) };
             }
             if let Some(m) = &mut s.compensate.m {
-                ui.add(egui::Slider::new(m, 0.0..=32.0).text("m"));
+                ui.add(egui::Slider::new(m, 0.0..=32.0).text("m")).on_hover_text(
+                    "How the projectors share each point (--m, Eq. 12): 0 shares evenly, 1 in \
+                     proportion to their efficiency, larger favours the projector facing the point.",
+                );
             }
         });
-        ui.add(egui::Slider::new(&mut s.compensate.margin, 0.0..=0.5).text("safety margin"));
-        ui.add(egui::Slider::new(&mut s.compensate.clip_fraction, 0.0..=0.1).text("clip fraction"));
+        ui.add(egui::Slider::new(&mut s.compensate.margin, 0.0..=0.5).text("safety margin")).on_hover_text(
+            "A fraction (--margin): the light stays at or below E_bound x (1 - margin); 0.05 keeps \
+             5 % under the bound.",
+        );
+        ui.add(egui::Slider::new(&mut s.compensate.clip_fraction, 0.0..=0.1).text("clip fraction"))
+            .on_hover_text(
+                "Fraction of the object's points (--clip-fraction) that may be dimmed on their own \
+                 rather than darkening everything; 0.01 = 1 %.",
+            );
     }
 
     fn lighting_ui(&mut self, ui: &mut egui::Ui) {
@@ -324,9 +418,17 @@ impl App {
                         remove = Some(i);
                     }
                 });
-                let a = ui.add(egui::Slider::new(&mut az, -180.0..=180.0).text("from (° right)"));
-                let e = ui.add(egui::Slider::new(&mut el, -89.0..=89.0).text("height (°)"));
-                let s = ui.add(egui::Slider::new(&mut strength, 0.0..=3.0).text("strength"));
+                let a =
+                    ui.add(egui::Slider::new(&mut az, -180.0..=180.0).text("from (° right)")).on_hover_text(
+                        "Where the light comes from, in degrees: 0 = from the camera, positive = from \
+                     the right as the camera sees it.",
+                    );
+                let e = ui
+                    .add(egui::Slider::new(&mut el, -89.0..=89.0).text("height (°)"))
+                    .on_hover_text("How high the light is above the camera's horizon, in degrees.");
+                let s = ui
+                    .add(egui::Slider::new(&mut strength, 0.0..=3.0).text("strength"))
+                    .on_hover_text("Strength of this white light (1 = unit strength).");
                 if a.changed() || e.changed() || s.changed() {
                     *light = directional(az, el, strength);
                 }
@@ -340,11 +442,24 @@ impl App {
         if ui.button("add light").clicked() {
             l.lights.push(directional(30.0, 30.0, 0.5));
         }
-        ui.add(egui::Slider::new(&mut l.ambient, 0.0..=1.0).text("ambient"));
-        ui.add(egui::Slider::new(&mut l.specular, 0.0..=1.0).text("specular"));
-        ui.add(egui::Slider::new(&mut l.shininess, 1.0..=200.0).logarithmic(true).text("shininess"));
-        ui.add(egui::Slider::new(&mut l.exposure, 0.1..=4.0).logarithmic(true).text("exposure"));
-        ui.add(egui::Slider::new(&mut w.settings.relight.noise, 0.0..=1.0).text("material noise"));
+        ui.add(egui::Slider::new(&mut l.ambient, 0.0..=1.0).text("ambient")).on_hover_text(
+            "Light reaching every point whatever way it faces (keeps shadowed sides visible).",
+        );
+        ui.add(egui::Slider::new(&mut l.specular, 0.0..=1.0).text("specular"))
+            .on_hover_text("Strength of the shiny highlight (0 = matte).");
+        ui.add(egui::Slider::new(&mut l.shininess, 1.0..=200.0).logarithmic(true).text("shininess"))
+            .on_hover_text(
+                "Sharpness of the highlight (Blinn-Phong exponent): larger is smaller and sharper.",
+            );
+        ui.add(egui::Slider::new(&mut l.exposure, 0.1..=4.0).logarithmic(true).text("exposure"))
+            .on_hover_text(
+                "Overall gain after lighting (a multiplier), so the brightest lit colours stay near full.",
+            );
+        ui.add(egui::Slider::new(&mut w.settings.relight.noise, 0.0..=1.0).text("material noise"))
+            .on_hover_text(
+                "How much of the photo's fine material noise is put back into the relit picture \
+                 (--noise, 0 to 1; 0 = none).",
+            );
     }
 
     fn figures_ui(&mut self, ui: &mut egui::Ui) {
@@ -367,6 +482,36 @@ impl App {
     }
 }
 
+/// What to do first, from what keeps the steps from running (`Project::can_run`): no
+/// classes, a class without picks, else steps with no output yet (`missing`). None when
+/// nothing is lacking.
+pub(super) fn first_step(small: &Small, missing: Steps) -> Option<String> {
+    let colours = &small.picks.colours;
+    if colours.is_empty() {
+        return Some(
+            "Start here: press \"add class\" (one per paint colour), then click a few pixels of \
+             that colour on the photo. The steps then run by themselves."
+                .into(),
+        );
+    }
+    if let Some(c) = colours.iter().find(|c| c.pixels.is_empty() && c.rects.is_empty()) {
+        return Some(format!(
+            "Next: pick a few pixels of '{}': select it below (the square after its colour), choose \
+             the pick tool and click on the photo.",
+            c.name
+        ));
+    }
+    if !missing.is_empty() {
+        let names: Vec<&str> = missing.iter().map(|s| s.name()).collect();
+        return Some(format!("Not computed yet: {}.", names.join(", ")));
+    }
+    None
+}
+
+fn plural(n: usize) -> &'static str {
+    if n == 1 { "" } else { "s" }
+}
+
 /// A class chooser with a "none" entry.
 fn class_combo(
     ui: &mut egui::Ui,
@@ -382,4 +527,28 @@ fn class_combo(
             ui.selectable_value(value, Some(k as u8), n);
         }
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use restage_authoring::relight::Lighting;
+
+    use super::first_step;
+    use crate::gui::doc::{Settings, Small, Step, Steps, empty_picks, new_class};
+
+    #[test]
+    fn the_first_step_follows_what_the_project_lacks() {
+        let mut small =
+            Small { settings: Settings::default(), picks: empty_picks(), lighting: Lighting::default() };
+        let all = Steps::from_iter(Step::ALL);
+        assert!(first_step(&small, all).unwrap().contains("add class"));
+        let c = new_class(&small.picks);
+        small.picks.colours.push(c);
+        let hint = first_step(&small, all).unwrap();
+        assert!(hint.contains("'colour 1'") && hint.contains("pick tool"), "{hint}");
+        small.picks.colours[0].pixels.push([3, 4]);
+        let hint = first_step(&small, Steps::from_iter([Step::Restore, Step::Relight])).unwrap();
+        assert!(hint.contains("restore, relight"), "{hint}");
+        assert_eq!(first_step(&small, Steps::NONE), None);
+    }
 }

@@ -94,10 +94,13 @@ impl App {
             ui.text_edit_singleline(&mut e.object_name);
             ui.end_row();
             ui.label("bundle version");
-            ui.add(egui::DragValue::new(&mut e.version).range(1..=u64::MAX));
+            ui.add(egui::DragValue::new(&mut e.version).range(1..=u64::MAX)).on_hover_text(
+                "The bundle's version number; each new bundle of an object needs a higher one.",
+            );
             ui.end_row();
             ui.label("valid for (days)");
-            ui.add(egui::DragValue::new(&mut e.valid_days).range(1..=3650));
+            ui.add(egui::DragValue::new(&mut e.valid_days).range(1..=3650))
+                .on_hover_text("Days from today until the bundle expires.");
             ui.end_row();
             ui.label("signing key");
             ui.text_edit_singleline(&mut e.key);
@@ -116,10 +119,22 @@ impl App {
             });
             ui.end_row();
             ui.label("longest showing (s)");
-            opt_drag(ui, &mut e.max_showing_s, 60, 1..=3600);
+            opt_drag(
+                ui,
+                &mut e.max_showing_s,
+                60,
+                1..=3600,
+                "Longest a scene may be shown at a time, in seconds.",
+            );
             ui.end_row();
             ui.label("dark between (s)");
-            opt_drag(ui, &mut e.cooldown_s, 30, 0..=3600);
+            opt_drag(
+                ui,
+                &mut e.cooldown_s,
+                30,
+                0..=3600,
+                "How long the object rests dark between showings, in seconds.",
+            );
             ui.end_row();
         });
         if ui.button("make a new key").clicked() {
@@ -174,15 +189,22 @@ impl App {
 }
 
 /// An optional number: a checkbox for "preset", a drag value otherwise.
-fn opt_drag(ui: &mut egui::Ui, value: &mut Option<u32>, default: u32, range: std::ops::RangeInclusive<u32>) {
+fn opt_drag(
+    ui: &mut egui::Ui,
+    value: &mut Option<u32>,
+    default: u32,
+    range: std::ops::RangeInclusive<u32>,
+    tip: &str,
+) {
     ui.horizontal(|ui| {
         let mut set = value.is_some();
-        if ui.checkbox(&mut set, "").changed() {
+        if ui.checkbox(&mut set, "").on_hover_text("Untick to use the sensitivity class's preset.").changed()
+        {
             *value = set.then_some(default);
         }
         match value {
             Some(v) => {
-                ui.add(egui::DragValue::new(v).range(range));
+                ui.add(egui::DragValue::new(v).range(range)).on_hover_text(tip);
             }
             None => {
                 ui.weak("class preset");
