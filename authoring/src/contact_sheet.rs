@@ -30,17 +30,24 @@ pub fn thumbnail(img: &LinearImage, tile_w: u32, gain: f32) -> RgbImage {
     })
 }
 
+/// The dark gap around and between a grid's thumbnails, pixels.
+pub const GAP: u32 = 4;
+
+/// Top-left corner of the thumbnail in `row`, `col` of a grid of `tile`-sized thumbnails.
+pub fn tile_origin(tile: (u32, u32), row: u32, col: u32) -> (u32, u32) {
+    (GAP + col * (tile.0 + GAP), GAP + row * (tile.1 + GAP))
+}
+
 /// Lays out rows of thumbnails (all the same size) with a dark gap between them.
 pub fn grid(rows: &[Vec<RgbImage>]) -> RgbImage {
-    let gap = 4;
     let (tw, th) = rows.iter().flatten().next().map_or((1, 1), |t| t.dimensions());
     let cols = rows.iter().map(Vec::len).max().unwrap_or(0) as u32;
-    let w = gap + cols * (tw + gap);
-    let h = gap + rows.len() as u32 * (th + gap);
+    let w = GAP + cols * (tw + GAP);
+    let h = GAP + rows.len() as u32 * (th + GAP);
     let mut sheet = RgbImage::from_pixel(w, h, Rgb([24, 24, 24]));
     for (r, row) in rows.iter().enumerate() {
         for (c, t) in row.iter().enumerate() {
-            let (ox, oy) = (gap + c as u32 * (tw + gap), gap + r as u32 * (th + gap));
+            let (ox, oy) = tile_origin((tw, th), r as u32, c as u32);
             for (x, y, p) in t.enumerate_pixels() {
                 if x < tw && y < th {
                     sheet.put_pixel(ox + x, oy + y, *p);

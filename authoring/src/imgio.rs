@@ -9,6 +9,10 @@ use std::path::{Path, PathBuf};
 use image::{ImageBuffer, Rgb};
 use thiserror::Error;
 
+/// The text note in every 16-bit linear PNG we write.
+pub const LINEAR16_NOTE: &str =
+    "linear light, not sRGB: 0..65535 is 0..1 of the camera's full scale (gAMA 1.0)";
+
 #[derive(Debug, Error)]
 pub enum ImageError {
     #[error("cannot read image {path}: {source}")]
@@ -88,12 +92,31 @@ impl LinearImage {
         Ok(img)
     }
 
-    /// Writes linear values as a 16-bit linear PNG (clamped to 0..=1).
+    /// Writes linear values as a 16-bit linear PNG (clamped to 0..=1), with a gAMA chunk of
+    /// 1.0 and a text note saying so: without them a viewer takes the values as sRGB and shows
+    /// a camera image nearly black.
     pub fn save_linear16(&self, path: &Path) -> Result<(), ImageError> {
-        let buf: ImageBuffer<Rgb<u16>, Vec<u16>> = ImageBuffer::from_fn(self.width, self.height, |x, y| {
-            Rgb(self.get(x, y).map(|c| (c.clamp(0.0, 1.0) * 65535.0).round() as u16))
-        });
-        buf.save(path).map_err(|source| ImageError::Write { path: path.into(), source })
+        let write_err = |e: std::io::Error| ImageError::Write { path: path.into(), source: e.into() };
+        let png_err = |e: png::EncodingError| write_err(e.into());
+        let file = std::fs::File::create(path).map_err(write_err)?;
+        let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
+        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_depth(png::BitDepth::Sixteen);
+        // The `image` crate's defaults, which wrote these files before: same size and speed.
+        encoder.set_compression(png::Compression::Balanced);
+        encoder.set_filter(png::Filter::Adaptive);
+        encoder.set_source_gamma(png::ScaledFloat::new(1.0));
+        encoder.add_text_chunk("Comment".into(), LINEAR16_NOTE.into()).map_err(png_err)?;
+        let mut writer = encoder.write_header().map_err(png_err)?;
+        // PNG samples are big-endian.
+        let bytes: Vec<u8> = self
+            .data
+            .iter()
+            .flat_map(|p| p.map(|c| (c.clamp(0.0, 1.0) * 65535.0).round() as u16))
+            .flat_map(u16::to_be_bytes)
+            .collect();
+        writer.write_image_data(&bytes).map_err(png_err)?;
+        writer.finish().map_err(png_err)
     }
 
     /// Writes an 8-bit sRGB PNG for people to look at (values scaled by `gain` first).
@@ -165,5 +188,38 @@ mod tests {
         let err = LinearImage::load_sized(&p, 4, 2).unwrap_err();
         assert!(err.to_string().contains("a.png"), "{err}");
         assert!(LinearImage::new(0, 5).is_err());
+    }
+
+    /// Camera images looked black in viewers: they are linear but carried no gAMA chunk.
+    #[test]
+    fn linear16_carries_gamma_one_and_its_pixels_read_back_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = LinearImage::new(5, 3).unwrap();
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = [i as f32 / 15.0, 1.0 - i as f32 / 15.0, (i % 4) as f32 / 3.0];
+        }
+        img.data[7] = [-0.5, 2.0, f32::NAN];
+        let p = dir.path().join("linear.png");
+        img.save_linear16(&p).unwrap();
+
+        let decoder = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&p).unwrap()));
+        let mut reader = decoder.read_info().unwrap();
+        let info = reader.info();
+        assert_eq!(info.gamma(), Some(png::ScaledFloat::new(1.0)), "no gAMA 1.0 chunk");
+        assert!(info.srgb.is_none() && info.icc_profile.is_none());
+        let note = info.uncompressed_latin1_text.iter().find(|t| t.keyword == "Comment").unwrap();
+        assert!(note.text.contains("linear"), "{}", note.text);
+        assert_eq!((info.width, info.height, info.bit_depth), (5, 3, png::BitDepth::Sixteen));
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        reader.next_frame(&mut buf).unwrap();
+        let samples: Vec<u16> = buf.chunks_exact(2).map(|b| u16::from_be_bytes([b[0], b[1]])).collect();
+        let want: Vec<u16> =
+            img.data.iter().flat_map(|p| p.map(|c| (c.clamp(0.0, 1.0) * 65535.0).round() as u16)).collect();
+        assert_eq!(samples, want);
+        // And through our own reader (the `image` crate), unchanged by the chunk.
+        let back = LinearImage::load(&p).unwrap();
+        let back16: Vec<u16> =
+            back.data.iter().flat_map(|p| p.map(|c| (c * 65535.0).round() as u16)).collect();
+        assert_eq!(back16, want);
     }
 }

@@ -4,7 +4,8 @@
 //! rewrites them; every screenshot (and a difference image for a failing one) is kept under
 //! `$CARGO_TARGET_TMPDIR/gui-screenshots/` for a person to look at. Without Xvfb the tests fail
 //! naming the package, unless `RESTAGE_NO_GUI_OK=1`. Also: no graphics adapter and no display
-//! give a clear message, not a crash.
+//! give a clear message, not a crash; and the same demo run's `index.html` renders in headless
+//! Chromium (screenshots in `$CARGO_TARGET_TMPDIR/report-screenshots/`).
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -94,6 +95,8 @@ fn every_view_matches_its_golden_screenshot() {
         .output()
         .unwrap();
     assert!(demo.status.success(), "running the demo:\n{}", String::from_utf8_lossy(&demo.stderr));
+    // The demo's report page, in a real browser: here, so that the demo runs once.
+    report_renders_in_chromium(&project);
     let shots = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("gui-screenshots");
     let _ = std::fs::remove_dir_all(&shots);
     let out = gui(&x.display)
@@ -154,6 +157,68 @@ fn every_view_matches_its_golden_screenshot() {
         }
     }
     assert!(failures.is_empty(), "screenshots differ from the golden images:\n{}", failures.join("\n"));
+}
+
+fn chromium() -> Option<&'static str> {
+    ["chromium", "chromium-browser", "google-chrome"].into_iter().find(|b| {
+        Command::new(b).arg("--version").stdout(Stdio::null()).stderr(Stdio::null()).status().is_ok()
+    })
+}
+
+/// Headless Chromium opens the demo's `index.html` from disk (so its relative links and
+/// pictures load as they would for a person) at a desktop and a phone width: it exits 0 and
+/// each screenshot shows pictures, not one flat colour. The screenshots are kept under
+/// `$CARGO_TARGET_TMPDIR/report-screenshots/`. `RESTAGE_SKIP_BROWSER=1` skips this, as it does
+/// the appliance's status page test.
+fn report_renders_in_chromium(project: &Path) {
+    if std::env::var_os("RESTAGE_SKIP_BROWSER").is_some_and(|v| v == "1") {
+        eprintln!("skipped: RESTAGE_SKIP_BROWSER=1 (the demo's report is not rendered in a browser)");
+        return;
+    }
+    let browser = chromium().expect(
+        "no chromium: install Debian's package `chromium` (apt-get install -y chromium), \
+         or set RESTAGE_SKIP_BROWSER=1 to skip the report's screenshot",
+    );
+    let index = project.join("index.html");
+    assert!(index.exists(), "the demo wrote no {}", index.display());
+    let shots = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("report-screenshots");
+    let _ = std::fs::remove_dir_all(&shots);
+    std::fs::create_dir_all(&shots).unwrap();
+    for (name, width, height) in [("report-desktop.png", 1280, 4000), ("report-phone.png", 390, 3000)] {
+        let png = shots.join(name);
+        let profile = tempfile::tempdir().unwrap();
+        let mut child = Command::new(browser)
+            .args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--no-first-run"])
+            .arg(format!("--user-data-dir={}", profile.path().display()))
+            .arg(format!("--screenshot={}", png.display()))
+            .arg(format!("--window-size={width},{height}"))
+            .arg(format!("file://{}", index.display()))
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let deadline = Instant::now() + Duration::from_secs(120);
+        let status = loop {
+            if let Some(st) = child.try_wait().unwrap() {
+                break st;
+            }
+            if Instant::now() > deadline {
+                let _ = child.kill();
+                panic!("chromium took over 120 s on {}", index.display());
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        };
+        let mut err = String::new();
+        let _ = child.stderr.take().map(|mut e| std::io::Read::read_to_string(&mut e, &mut err));
+        assert!(status.success() && png.exists(), "chromium failed ({status}): {err}");
+        let shot = image::open(&png).unwrap().to_rgb8();
+        assert_eq!(shot.dimensions(), (width, height), "{}", png.display());
+        // Pictures, false colours and plots give many colours; text on white alone, a few hundred.
+        let colours: std::collections::HashSet<[u8; 3]> = shot.pixels().map(|p| p.0).collect();
+        let white = shot.pixels().filter(|p| p.0 == [255; 3]).count() as f64 / (width * height) as f64;
+        eprintln!("{}: {} colours, {:.0} % white", png.display(), colours.len(), 100.0 * white);
+        assert!(colours.len() > 1000 && white < 0.97, "{}: a blank page?", png.display());
+    }
 }
 
 #[test]

@@ -9,7 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use rayon::prelude::*;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::CalibrateError;
 use crate::capture_set::{Axis, Pattern, ProjectorCapture, Shot, gray_bits};
@@ -61,7 +61,7 @@ impl DecodeParams {
 }
 
 /// How well one projector decoded.
-#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DecodeQuality {
     pub projector: u32,
     pub pixels: usize,
@@ -83,6 +83,7 @@ pub struct DecodeQuality {
     /// Whether phase images were linearised with a response measured from gray ramps.
     pub linearised: bool,
     /// Median over decoded pixels of the smallest bit margin relative to white - black.
+    #[serde(deserialize_with = "super::nan_if_null_f32")]
     pub median_relative_margin: f32,
     pub warnings: Vec<String>,
 }

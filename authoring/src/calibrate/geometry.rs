@@ -10,7 +10,7 @@
 use std::path::Path;
 
 use nalgebra::Vector3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::decode::{self, CaptureImages, DecodeParams, DecodeQuality, ProjectorDecode};
 use super::selfcal::{self, Conditioning, KnownLength, ProjectorObservations, SelfCalParams, SelfCalResult};
@@ -38,19 +38,22 @@ impl GeometryOptions {
     }
 }
 
-/// Figures of the geometric calibration, for people and the report.
-#[derive(Clone, Debug, Serialize)]
+/// Figures of the geometric calibration, for people and the report (`STAGE/report.json`).
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct GeometryReport {
     pub decode: Vec<DecodeQuality>,
     /// RMS reprojection error (projector px) of the bundle adjustment's inliers.
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub adjustment_rms_px: f64,
     pub adjustment_iterations: usize,
     /// RMS reprojection error (projector px) over every triangulated observation.
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub dense_rms_px: f64,
     pub points: usize,
     pub rejected_by_residual: usize,
     pub rejected_by_depth: usize,
     /// Millimetres per solver unit, from the known length.
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub scale_mm: f64,
     pub conditioning: Vec<Conditioning>,
     pub warnings: Vec<String>,
@@ -168,4 +171,48 @@ pub fn extent_mm(points: &[[f32; 3]]) -> f64 {
         hi = hi.sup(&v);
     }
     if lo.x.is_finite() { (hi - lo).norm() } else { 0.0 }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `report.json` is read back by the demo's page; figures the data cannot determine
+    /// (infinite, NaN) are written as `null` and must still read, as NaN.
+    #[test]
+    fn a_report_with_undetermined_figures_reads_back() {
+        let report = GeometryReport {
+            decode: vec![DecodeQuality {
+                projector: 0,
+                decoded: 7,
+                median_relative_margin: f32::NAN,
+                ..Default::default()
+            }],
+            adjustment_rms_px: 0.25,
+            adjustment_iterations: 4,
+            dense_rms_px: 0.5,
+            points: 7,
+            rejected_by_residual: 1,
+            rejected_by_depth: 0,
+            scale_mm: 600.0,
+            conditioning: vec![Conditioning {
+                projector: 0,
+                f_std_px: 1.0,
+                cx_std_px: 0.5,
+                cy_std_px: 2.0,
+                cx_std_data_only_px: f64::INFINITY,
+                homography_fraction: 0.1,
+            }],
+            warnings: vec!["w".into()],
+        };
+        let json = serde_json::to_string(&report).unwrap();
+        assert!(json.contains("\"cx_std_data_only_px\":null"), "{json}");
+        let back: GeometryReport = serde_json::from_str(&json).unwrap();
+        assert!(
+            back.conditioning[0].cx_std_data_only_px.is_nan()
+                && back.decode[0].median_relative_margin.is_nan()
+        );
+        assert_eq!((back.points, back.scale_mm, back.conditioning[0].cy_std_px), (7, 600.0, 2.0));
+        assert_eq!(back.warnings, ["w"]);
+    }
 }

@@ -20,6 +20,17 @@ use thiserror::Error;
 use crate::capture_set::CaptureSetError;
 use crate::imgio::ImageError;
 
+/// Reads a JSON number written from a float that may have been NaN or infinite (serde_json
+/// writes those as `null`) back as NaN, so reports with "not determined" figures still read.
+pub(crate) fn nan_if_null<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(<Option<f64> as serde::Deserialize>::deserialize(d)?.unwrap_or(f64::NAN))
+}
+
+/// [`nan_if_null`] for `f32` fields.
+pub(crate) fn nan_if_null_f32<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f32, D::Error> {
+    Ok(<Option<f32> as serde::Deserialize>::deserialize(d)?.unwrap_or(f32::NAN))
+}
+
 /// Why self-calibration cannot determine the stage from these correspondences: the scene or
 /// the view, not the software, is at fault, and the message says what to change.
 #[derive(Debug, Error)]

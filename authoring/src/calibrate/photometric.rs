@@ -546,31 +546,40 @@ pub fn response_plot(rad: &ProjectorRadiometry) -> image::RgbImage {
     img
 }
 
-/// Footprint size per projector pixel as a false-colour image (dark blue small, yellow at twice
-/// the median), black where no dot was measured.
-pub fn footprint_map(footprint: &[f32], width: u32, height: u32) -> image::RgbImage {
+/// The footprint that [`footprint_map`] shows at full scale (yellow): twice the median of the
+/// measured footprints, camera pixels' worth of light.
+pub fn footprint_scale(footprint: &[f32]) -> f32 {
     let mut vals: Vec<f32> = footprint.iter().copied().filter(|v| v.is_finite()).collect();
-    let scale = if vals.is_empty() {
-        1.0
+    if vals.is_empty() {
+        return 1.0;
+    }
+    let mid = vals.len() / 2;
+    2.0 * *vals.select_nth_unstable_by(mid, f32::total_cmp).1
+}
+
+/// The footprint map's colour at `t` (0..=1 of [`footprint_scale`]): blue, teal, yellow.
+pub fn footprint_colour(t: f32) -> [u8; 3] {
+    let t = t.clamp(0.0, 1.0);
+    let (r, g, b) = if t < 0.5 {
+        let s = t * 2.0;
+        (30.0 + 10.0 * s, 40.0 + 140.0 * s, 140.0 + 10.0 * s)
     } else {
-        let mid = vals.len() / 2;
-        2.0 * *vals.select_nth_unstable_by(mid, f32::total_cmp).1
+        let s = (t - 0.5) * 2.0;
+        (40.0 + 210.0 * s, 180.0 + 50.0 * s, 150.0 - 120.0 * s)
     };
+    [r as u8, g as u8, b as u8]
+}
+
+/// Footprint size per projector pixel as a false-colour image ([`footprint_colour`] up to
+/// [`footprint_scale`]), black where no dot was measured.
+pub fn footprint_map(footprint: &[f32], width: u32, height: u32) -> image::RgbImage {
+    let scale = footprint_scale(footprint);
     image::RgbImage::from_fn(width, height, |x, y| {
         let v = footprint[(y * width + x) as usize];
         if !v.is_finite() {
             return image::Rgb([0; 3]);
         }
-        let t = (v / scale.max(1e-6)).clamp(0.0, 1.0);
-        // Blue -> teal -> yellow.
-        let (r, g, b) = if t < 0.5 {
-            let s = t * 2.0;
-            (30.0 + 10.0 * s, 40.0 + 140.0 * s, 140.0 + 10.0 * s)
-        } else {
-            let s = (t - 0.5) * 2.0;
-            (40.0 + 210.0 * s, 180.0 + 50.0 * s, 150.0 - 120.0 * s)
-        };
-        image::Rgb([r as u8, g as u8, b as u8])
+        image::Rgb(footprint_colour(v / scale.max(1e-6)))
     })
 }
 

@@ -7,26 +7,38 @@ use image::{Rgb, RgbImage, imageops};
 use super::decode::ProjectorDecode;
 use super::triangulate::DenseGeometry;
 
-const PANEL: u32 = 320;
+/// Width of each panel of the report image, pixels; panels keep the camera's aspect.
+pub const PANEL: u32 = 320;
+/// The residual histogram's x axis ends here, projector pixels.
+pub const RESIDUAL_MAX_PX: f32 = 1.0;
+/// The histogram's plot area: 10 px in from the left and right, its zero line 13 px above the
+/// bottom, a count at the curve's peak 7 px below the top.
+pub const HIST_SIDE: u32 = 10;
+pub const HIST_BASE: u32 = 13;
+pub const HIST_TOP: u32 = 7;
+
+/// Height of a panel showing a `width x height` camera image.
+pub fn panel_height(width: u32, height: u32) -> u32 {
+    (PANEL as f64 * height as f64 / width as f64).round().max(1.0) as u32
+}
 
 fn panel(img: &RgbImage) -> RgbImage {
-    let h = (PANEL as f64 * img.height() as f64 / img.width() as f64).round().max(1.0) as u32;
-    imageops::resize(img, PANEL, h, imageops::FilterType::Triangle)
+    imageops::resize(img, PANEL, panel_height(img.width(), img.height()), imageops::FilterType::Triangle)
 }
 
 /// Residual histogram: `bins` bins over 0..`max_px`, one curve per projector, normalised to its
 /// peak. Axis ticks every 0.1 px.
 pub fn histogram(residuals: &[Vec<f32>], max_px: f32, width: u32, height: u32) -> RgbImage {
     let mut img = RgbImage::from_pixel(width, height, Rgb([250, 250, 250]));
-    let bins = (width - 20) as usize;
+    let bins = (width - 2 * HIST_SIDE) as usize;
     for tick in 0..=10 {
-        let x = 10 + (tick as f32 / 10.0 * bins as f32) as u32;
-        for y in height - 12..height - 2 {
+        let x = HIST_SIDE + (tick as f32 / 10.0 * bins as f32) as u32;
+        for y in height - HIST_BASE + 1..height - 2 {
             img.put_pixel(x.min(width - 1), y, Rgb([0, 0, 0]));
         }
     }
-    for x in 10..width - 10 {
-        img.put_pixel(x, height - 12, Rgb([0, 0, 0]));
+    for x in HIST_SIDE..width - HIST_SIDE {
+        img.put_pixel(x, height - HIST_BASE + 1, Rgb([0, 0, 0]));
     }
     for (k, res) in residuals.iter().enumerate() {
         let mut counts = vec![0u32; bins];
@@ -38,11 +50,11 @@ pub fn histogram(residuals: &[Vec<f32>], max_px: f32, width: u32, height: u32) -
         }
         let peak = counts.iter().copied().max().unwrap_or(0).max(1) as f32;
         let colour = Rgb(crate::color::categorical(k));
-        let plot_h = (height - 20) as f32;
+        let plot_h = (height - HIST_BASE - HIST_TOP) as f32;
         let mut prev: Option<u32> = None;
         for (b, &c) in counts.iter().enumerate() {
-            let y = height - 13 - (c as f32 / peak * plot_h) as u32;
-            let x = 10 + b as u32;
+            let y = height - HIST_BASE - (c as f32 / peak * plot_h) as u32;
+            let x = HIST_SIDE + b as u32;
             let (lo, hi) = match prev {
                 Some(p) => (p.min(y), p.max(y)),
                 None => (y, y),
@@ -56,35 +68,58 @@ pub fn histogram(residuals: &[Vec<f32>], max_px: f32, width: u32, height: u32) -
     img
 }
 
-/// Normal map as colours: `(n + 1) / 2` with +y flipped so up-facing surfaces look green.
+/// A unit normal's colour: `(n + 1) / 2` with +y and +z flipped, so up-facing surfaces look
+/// green and surfaces facing the camera blue.
+pub fn normal_colour(n: [f32; 3]) -> [u8; 3] {
+    [
+        ((n[0] * 0.5 + 0.5) * 255.0) as u8,
+        ((-n[1] * 0.5 + 0.5) * 255.0) as u8,
+        ((-n[2] * 0.5 + 0.5) * 255.0) as u8,
+    ]
+}
+
+/// Normal map as colours ([`normal_colour`]), black where unknown.
 pub fn normal_map(width: u32, height: u32, normals: &[[f32; 3]]) -> RgbImage {
     RgbImage::from_fn(width, height, |x, y| {
         let n = normals[(y * width + x) as usize];
-        if n[0].is_finite() {
-            Rgb([
-                ((n[0] * 0.5 + 0.5) * 255.0) as u8,
-                ((-n[1] * 0.5 + 0.5) * 255.0) as u8,
-                ((-n[2] * 0.5 + 0.5) * 255.0) as u8,
-            ])
-        } else {
-            Rgb([0, 0, 0])
+        if n[0].is_finite() { Rgb(normal_colour(n)) } else { Rgb([0, 0, 0]) }
+    })
+}
+
+/// The depth map's range: nearest and farthest finite z, mm (None without two depths).
+pub fn depth_range(points: &[[f32; 3]]) -> Option<(f32, f32)> {
+    let (lo, hi) = points
+        .iter()
+        .map(|p| p[2])
+        .filter(|z| z.is_finite())
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |a, z| (a.0.min(z), a.1.max(z)));
+    (hi > lo).then_some((lo, hi))
+}
+
+/// The depth map's grey for depth `z` mm in `range`: 255 nearest, 40 farthest.
+pub fn depth_grey(z: f32, (lo, hi): (f32, f32)) -> u8 {
+    (40.0 + 215.0 * (hi - z) / (hi - lo)) as u8
+}
+
+/// Depth map, near = bright ([`depth_grey`]), black where unknown.
+pub fn depth_map(width: u32, height: u32, points: &[[f32; 3]]) -> RgbImage {
+    let range = depth_range(points);
+    RgbImage::from_fn(width, height, |x, y| {
+        let z = points[(y * width + x) as usize][2];
+        match range {
+            Some(r) if z.is_finite() => {
+                let v = depth_grey(z, r);
+                Rgb([v, v, v])
+            }
+            _ => Rgb([0, 0, 0]),
         }
     })
 }
 
-/// Depth map, near = bright.
-pub fn depth_map(width: u32, height: u32, points: &[[f32; 3]]) -> RgbImage {
-    let zs: Vec<f32> = points.iter().map(|p| p[2]).filter(|z| z.is_finite()).collect();
-    let (lo, hi) = zs.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |a, &z| (a.0.min(z), a.1.max(z)));
-    RgbImage::from_fn(width, height, |x, y| {
-        let z = points[(y * width + x) as usize][2];
-        if z.is_finite() && hi > lo {
-            let v = (40.0 + 215.0 * (hi - z) / (hi - lo)) as u8;
-            Rgb([v, v, v])
-        } else {
-            Rgb([0, 0, 0])
-        }
-    })
+/// A coverage map's colour for projector coordinate (`x`, `y`) of a `width x height`
+/// projector: red grows with x, green with y.
+pub fn coverage_colour(x: f32, y: f32, width: u32, height: u32) -> [u8; 3] {
+    [(40.0 + 215.0 * x / width as f32) as u8, (40.0 + 215.0 * y / height as f32) as u8, 60]
 }
 
 /// The whole report: a row of coverage maps, then normal map, depth map and histogram.
@@ -99,15 +134,7 @@ pub fn render(decodes: &[ProjectorDecode], dense: &DenseGeometry, pw: &[(u32, u3
         .map(|(d, &(px, py))| {
             RgbImage::from_fn(w, h, |x, y| {
                 let i = (y * w + x) as usize;
-                if d.is_valid(i) {
-                    Rgb([
-                        (40.0 + 215.0 * d.x[i] / px as f32) as u8,
-                        (40.0 + 215.0 * d.y[i] / py as f32) as u8,
-                        60,
-                    ])
-                } else {
-                    Rgb([0, 0, 0])
-                }
+                if d.is_valid(i) { Rgb(coverage_colour(d.x[i], d.y[i], px, py)) } else { Rgb([0, 0, 0]) }
             })
         })
         .map(|i| panel(&i))
@@ -126,7 +153,7 @@ pub fn render(decodes: &[ProjectorDecode], dense: &DenseGeometry, pw: &[(u32, u3
     let bottom = [
         panel(&normal_map(w, h, &dense.normals)),
         panel(&depth_map(w, h, &dense.points)),
-        histogram(&dense.residuals, 1.0, PANEL, ph),
+        histogram(&dense.residuals, RESIDUAL_MAX_PX, PANEL, ph),
     ];
     let cols = top.len().max(3) as u32;
     let mut out = RgbImage::from_pixel(cols * PANEL, ph * 2, Rgb([255, 255, 255]));

@@ -13,7 +13,7 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SymmetricEigen, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::{CalibrateError, IllPosed, SolverError};
 use crate::capture_set::CameraIntrinsics;
@@ -86,16 +86,21 @@ impl ProjectorGeometry {
 
 /// How well the solution is determined, per projector (standard deviations from the
 /// Gauss-Newton covariance at the optimum, gauge fixed by the scale).
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Conditioning {
     pub projector: u32,
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub f_std_px: f64,
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub cx_std_px: f64,
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub cy_std_px: f64,
     /// `cx`'s standard deviation from the data alone, without the centred prior (infinite when
     /// the data cannot determine it).
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub cx_std_data_only_px: f64,
     /// Fraction of this projector's inliers a single homography explains (1 = planar scene).
+    #[serde(deserialize_with = "super::nan_if_null")]
     pub homography_fraction: f64,
 }
 

@@ -39,7 +39,7 @@ pub use cleanup::{fill_holes, fill_losses, remove_specks};
 pub use contour::{Contour, Patch, trace_patches};
 pub use hints::{HintMap, hints_from_rgba};
 pub use region::{Region, Shape};
-pub use render::{before_after, boundary_mask, render_labels};
+pub use render::{BEFORE_AFTER_GAP, before_after, boundary_mask, render_labels};
 
 pub use crate::classify::{LabelMap, MASKED};
 

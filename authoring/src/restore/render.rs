@@ -27,11 +27,14 @@ pub fn boundary_mask(labels: &LabelMap) -> Vec<bool> {
     m
 }
 
-/// Before (left) and after (right), 8 px apart; contours before in magenta on both panels,
-/// contours after in cyan on the right, so what moved stands out.
+/// The white gap between the two panels of [`before_after`], pixels.
+pub const BEFORE_AFTER_GAP: u32 = 8;
+
+/// Before (left) and after (right), [`BEFORE_AFTER_GAP`] apart; contours before in magenta on
+/// both panels, contours after in cyan on the right, so what moved stands out.
 pub fn before_after(before: &LabelMap, after: &LabelMap, colours: &[[u8; 3]]) -> RgbImage {
     let (w, h) = (before.width, before.height);
-    let gap = 8;
+    let gap = BEFORE_AFTER_GAP;
     let mut out = RgbImage::from_pixel(2 * w + gap, h, Rgb([255, 255, 255]));
     let (b_img, a_img) = (render_labels(before, colours), render_labels(after, colours));
     let (b_edge, a_edge) = (boundary_mask(before), boundary_mask(after));

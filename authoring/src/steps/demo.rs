@@ -148,7 +148,7 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
     )?;
     tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());
 
-    let summary = super::demo_chain::run_chain(
+    let mut summary = super::demo_chain::run_chain(
         &args.out,
         &capture_dir,
         &scene,
@@ -159,6 +159,11 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
         &head,
         progress,
     )?;
+
+    // Last: one page that shows every step's pictures and figures, read back from the files.
+    progress.stage("writing the report");
+    let index = super::report::write(&args.out)?;
+    summary.summary.push_str(&format!("report: open {} in a browser\n", index.display()));
 
     tracing::info!(
         "demo finished in {:.1} s; results in {}",

@@ -18,6 +18,7 @@ pub mod demo_chain;
 pub mod keygen;
 pub mod relight;
 pub mod render;
+pub mod report;
 pub mod restore;
 pub mod simulate;
 pub mod verify;
