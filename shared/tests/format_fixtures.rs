@@ -154,7 +154,7 @@ fn bundle_v1_fixture_verifies_and_reads_back() {
     let trusted = load_public_key(&trust_dir().join("fixture.pub.pem")).unwrap();
     assert_eq!(trusted, key().verifying_key(), "the checked-in key is the fixture seed's");
     let v = verify_file(&bundle_path(), &trust_dir(), &VerifyOptions::at(NOW)).unwrap();
-    assert!(v.authenticated);
+    assert!(v.summary().authenticated);
     assert_eq!(v.key_id, KeyId::of(&trusted));
     assert_eq!(hex(&v.manifest_hash), MANIFEST_BLAKE3);
 

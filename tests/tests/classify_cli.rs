@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use restage_authoring::classify::{LabelMap, MASKED, Palette, Picks};
+use restage_authoring::classify::{LabelMap, MASKED, Palette};
 use restage_tests::{bowl_inputs, run_author};
 
 fn stderr(o: &std::process::Output) -> String {
