@@ -33,7 +33,7 @@ pub fn run(args: &InspectArgs) -> Result<()> {
             };
             let v = verify_file(&args.bundle, dir, &VerifyOptions::at(now))?;
             let text = format!(
-                "{}signature verified with key {}\n",
+                "{}signature: verified with key {}\n",
                 describe(&v.manifest, Some(&v.peaks)),
                 v.key_id
             );
