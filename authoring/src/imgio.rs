@@ -102,8 +102,9 @@ impl LinearImage {
         let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), self.width, self.height);
         encoder.set_color(png::ColorType::Rgb);
         encoder.set_depth(png::BitDepth::Sixteen);
-        // The `image` crate's defaults, which wrote these files before: same size and speed.
-        encoder.set_compression(png::Compression::Balanced);
+        // The `image` crate's defaults, which wrote these files before (its `Fast` is fdeflate,
+        // over ten times quicker than `Balanced` on noisy camera images, files 10 % larger).
+        encoder.set_compression(png::Compression::Fast);
         encoder.set_filter(png::Filter::Adaptive);
         encoder.set_source_gamma(png::ScaledFloat::new(1.0));
         encoder.add_text_chunk("Comment".into(), LINEAR16_NOTE.into()).map_err(png_err)?;
