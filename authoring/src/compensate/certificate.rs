@@ -9,7 +9,8 @@
 //! A point's rectangle per projector covers, for every camera pixel of its patch that the
 //! projector sees, the projector pixels of that camera pixel's footprint (the support
 //! compensation splats onto) grown by one pixel for lens blur, and every pixel whose measured
-//! footprint (transport) reaches that camera pixel. Its coefficient is the largest `eta_ik` over the patch. So the
+//! footprint (transport) reaches that camera pixel. Its coefficient is the largest bound of
+//! `eta_ik` over the patch's stretch of surface (`landing::bound_eta`). So the
 //! brightest pixel of the rectangle times the coefficient bounds the light of any point of
 //! the patch: the check over-estimates, never under-estimates.
 
@@ -20,6 +21,7 @@ use restage_shared::light::{
 };
 
 use super::geometry::Geometry;
+use super::landing::{self, Landing};
 use crate::stage_model::StageModel;
 
 /// A point's block of projector pixels and its coefficient: the bundle's own
@@ -56,6 +58,9 @@ pub struct Certificate {
     pub ambient_lux: f64,
     /// Per camera pixel, its certificate point (`u32::MAX` where no projector sees it).
     pub point_of_pixel: Vec<u32>,
+    /// Points from here on stand for surface the model does not know, beside a projector's
+    /// known landing (`add_unseen_ring`); before it, object points.
+    pub first_unseen: usize,
 }
 
 impl Certificate {
@@ -101,9 +106,18 @@ fn pixel_blocks(stage: &StageModel, geom: &Geometry, k: usize) -> Vec<Block> {
 }
 
 /// Builds the certificate with `reduction x reduction` camera pixels per point and the room
-/// light `ambient_lux` counted everywhere.
-pub fn build(stage: &StageModel, geom: &Geometry, reduction: u32, ambient_lux: f64) -> Certificate {
+/// light `ambient_lux` counted everywhere: the object points, with coefficients bounded over
+/// each pixel's stretch of surface ([`landing::bound_eta`]), then one point per unseen-ring
+/// pixel of every projector ([`landing::Landing::ring`]).
+pub fn build(
+    stage: &StageModel,
+    geom: &Geometry,
+    landings: &[Landing],
+    reduction: u32,
+    ambient_lux: f64,
+) -> Certificate {
     let r = reduction.max(1) as usize;
+    let bound = landing::bound_eta(stage, geom);
     let (cw, ch) = (stage.camera.width as usize, stage.camera.height as usize);
     let (gw, gh) = (cw.div_ceil(r), ch.div_ceil(r));
     let kn = geom.projectors;
@@ -143,7 +157,7 @@ pub fn build(stage: &StageModel, geom: &Geometry, reduction: u32, ambient_lux: f
                                     p.width,
                                     p.height,
                                 );
-                                l = l.max(geom.eta[i * kn + k]);
+                                l = l.max(bound[i * kn + k]);
                             }
                         }
                     }
@@ -158,7 +172,46 @@ pub fn build(stage: &StageModel, geom: &Geometry, reduction: u32, ambient_lux: f
     let point_of_pixel = (0..cw * ch)
         .map(|i| if geom.covered(i) { patch_point[(i / cw / r) * gw + (i % cw) / r] } else { u32::MAX })
         .collect();
-    Certificate { reduction: r as u32, point_px, projectors, ambient_lux, point_of_pixel }
+    let mut cert = Certificate {
+        reduction: r as u32,
+        first_unseen: point_px.len(),
+        point_px,
+        projectors,
+        ambient_lux,
+        point_of_pixel,
+    };
+    add_unseen_ring(&mut cert, stage, landings);
+    cert
+}
+
+/// Appends, per projector, one point for every pixel of its unseen ring: light there lands
+/// on surface the model does not know, so the pixel's block (itself and its neighbours, for
+/// blur) is charged as if it fell on a surface facing the projector, nearer than the known
+/// surface around it ([`Landing::unseen_eta`]). Compensation keeps these pixels black; the
+/// points make the appliance's check hold the blur of their lit neighbours to the bound.
+fn add_unseen_ring(cert: &mut Certificate, stage: &StageModel, landings: &[Landing]) {
+    let (cw, ch) = (stage.camera.width, stage.camera.height);
+    for (k, l) in landings.iter().enumerate() {
+        let p = &stage.projectors[k];
+        for (x, y) in l.ring() {
+            let Some(eta) = l.unseen_eta(p, x, y) else { continue };
+            let mut b = Block::default();
+            include(&mut b, x as i64 - 1, y as i64 - 1, x as i64 + 2, y as i64 + 2, p.width, p.height);
+            b.lux_per_unit = eta as f32 * (1.0 + 1e-6);
+            // Name it by a camera pixel whose footprint lands next to it.
+            let near = (y.saturating_sub(1)..=(y + 1).min(p.height - 1))
+                .flat_map(|yy| (x.saturating_sub(1)..=(x + 1).min(p.width - 1)).map(move |xx| (xx, yy)))
+                .map(|(xx, yy)| l.near_camera_pixel[(yy * p.width + xx) as usize])
+                .find(|&c| c != u32::MAX)
+                .map_or([u16::MAX; 2], |c| {
+                    [(c % cw).min(u16::MAX as u32) as u16, (c / cw).min(ch - 1).min(u16::MAX as u32) as u16]
+                });
+            cert.point_px.push(near);
+            for (j, (_, _, blocks)) in cert.projectors.iter_mut().enumerate() {
+                blocks.push(if j == k { b } else { Block::default() });
+            }
+        }
+    }
 }
 
 impl Certificate {

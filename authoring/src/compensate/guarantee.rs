@@ -164,6 +164,25 @@ pub fn enforce(
     }
 }
 
+/// Sets to black every lit pixel whose light would land on surface the model does not know
+/// (`Landing::known` false). Only lowers light. Returns how many pixels it changed.
+pub fn darken_unknown(landings: &[super::landing::Landing], frames: &mut [RgbImage]) -> usize {
+    frames
+        .par_iter_mut()
+        .zip(landings)
+        .map(|(frame, l)| {
+            let mut n = 0;
+            for (px, &known) in frame.pixels_mut().zip(&l.known) {
+                if !known && px.0 != [0; 3] {
+                    px.0 = [0; 3];
+                    n += 1;
+                }
+            }
+            n
+        })
+        .sum()
+}
+
 /// Sets to black every lit pixel the certificate does not vouch for in the appliance's light
 /// check (`Coverage`): pixels outside every block (none, by construction: a point's block holds
 /// its splat support) or inside only blocks whose coefficient is under the appliance's floor

@@ -19,6 +19,7 @@ pub mod geometry;
 pub mod gpu;
 pub mod guarantee;
 pub mod io;
+pub mod landing;
 pub mod report;
 pub mod response;
 pub mod synthetic;
@@ -157,6 +158,13 @@ pub struct Stats {
     /// Lit pixels set black because the certificate could not vouch for them in the
     /// appliance's light check (`restage_shared::light::Coverage`); 0 in practice.
     pub unvouched_pixels: usize,
+    /// Projector pixels the draft lit whose light would land on surface the model does not
+    /// know (unseen, unreconstructed, past a silhouette), set black.
+    #[serde(default)]
+    pub unseen_dark_pixels: usize,
+    /// Certificate points standing for unknown surface beside the known landing.
+    #[serde(default)]
+    pub unseen_points: usize,
 }
 
 /// The result: frames and what is needed to report on them.
@@ -184,6 +192,8 @@ pub struct Prepared {
     pub floor: Vec<[f64; 3]>,
     /// The certificate in the bundle's format, in parts for the parallel independent check.
     pub shared_parts: Vec<(u32, restage_shared::light::LightCertificate)>,
+    /// Per projector, which pixels' light lands on known surface (the others stay black).
+    pub landings: Vec<landing::Landing>,
 }
 
 impl Prepared {
@@ -204,10 +214,14 @@ impl Prepared {
             .map(|p| std::array::from_fn(|c| InverseResponse::new(&p.response[c])))
             .collect();
         let room = room_lux(stage, &geometry);
-        let certificate = certificate::build(stage, &geometry, reduction, room);
+        let landings: Vec<landing::Landing> = (0..stage.projectors.len())
+            .into_par_iter()
+            .map(|k| landing::landing(stage, &geometry, k))
+            .collect();
+        let certificate = certificate::build(stage, &geometry, &landings, reduction, room);
         let floor = guarantee::floor_lux(stage, &certificate);
         let shared_parts = certificate.to_shared_parts();
-        Ok(Self { geometry, inverse, certificate, floor, shared_parts })
+        Ok(Self { geometry, inverse, certificate, floor, shared_parts, landings })
     }
 }
 
@@ -309,6 +323,8 @@ pub fn compensate_on(
         None => draft_cpu(stage, prep, target, params)?,
     };
     let Draft { weights, mut frames, scale, covered, by_bound, by_sat } = draft;
+    // Light that would land where the model cannot bound it stays dark.
+    let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut frames);
 
     // Fix 3: the guarantee, on the final 8-bit frames.
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: draft done");
@@ -369,6 +385,8 @@ pub fn compensate_on(
             rounds: enf.rounds,
             dimmed_pixels: enf.dimmed_pixels,
             unvouched_pixels: unvouched,
+            unseen_dark_pixels: unseen_dark,
+            unseen_points: cert.points() - cert.first_unseen,
         },
     })
 }

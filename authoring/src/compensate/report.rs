@@ -168,7 +168,8 @@ pub fn save(
 <tr><td>covered object points</td><td>{cov}</td></tr>
 <tr><td>limited by the bound / by projector saturation</td><td>{bb} ({bbp:.2} %) / {bs} ({bsp:.2} %)</td></tr>
 <tr><td>guarantee rounds, pixels dimmed</td><td>{rounds}, {dimmed}</td></tr>
-<tr><td>certificate points</td><td>{cp}</td></tr>
+<tr><td>certificate points (of them beside unknown surface)</td><td>{cp} ({up})</td></tr>
+<tr><td>pixels kept black: light would land on unknown surface</td><td>{ud}</td></tr>
 </table>
 <h2>Irradiance per unit area (lux)</h2>
 <img src="irradiance.png"><div style="width:560px;height:14px;background:linear-gradient(to right,{grad})"></div>
@@ -191,6 +192,8 @@ pub fn save(
         rounds = s.rounds,
         dimmed = s.dimmed_pixels,
         cp = s.certificate_points,
+        up = s.unseen_points,
+        ud = s.unseen_dark_pixels,
         grad = gradient.join(","),
         half = params.e_bound_lux / 2.0,
     );

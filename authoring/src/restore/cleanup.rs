@@ -111,17 +111,26 @@ pub fn remove_specks(work: &mut [u8], w: u32, h: u32, mask: &[bool], min_area: u
 /// region has no such pixel. A chip inside a band becomes band, one on the slip becomes slip,
 /// and one across a band's edge is split near where the edge would continue; the contour
 /// minimisation then smooths that split. Returns the number of pixels filled.
+///
+/// A chip's rim is not trusted as a source: a camera pixel there mixes bare clay with the
+/// paint around it, and may be classified as a class that is not there at all (a dark mix
+/// of clay and light paint reads as a dark paint). Rim pixels whose class is rare in the ring
+/// just beyond the rim ([`suspect_rims`]) are filled with the chip, so the chip takes the
+/// colour that surrounds it; a line crossing the chip continues beyond the rim, so its class
+/// is in the ring and its rim pixels stay.
 pub fn fill_losses(work: &mut [u8], w: u32, h: u32, mask: &[bool], loss: &[u8], background: u8) -> usize {
     let (w, h) = (w as usize, h as usize);
     let is_loss = |l: u8| loss.contains(&l);
     if !work.iter().zip(mask).any(|(&l, &m)| m && is_loss(l)) {
         return 0;
     }
+    let suspect = suspect_rims(work, w, h, mask, &is_loss);
+    let fill = |i: usize| mask[i] && (is_loss(work[i]) || suspect[i]);
     const NONE: (i32, i32) = (i32::MIN, i32::MIN);
     let mut src: Vec<(i32, i32)> = (0..w * h)
         .map(|i| {
             let l = work[i];
-            if mask[i] && l != MASKED && !is_loss(l) { ((i % w) as i32, (i / w) as i32) } else { NONE }
+            if mask[i] && l != MASKED && !fill(i) { ((i % w) as i32, (i / w) as i32) } else { NONE }
         })
         .collect();
     let d2 = |s: (i32, i32), x: i32, y: i32| {
@@ -158,16 +167,96 @@ pub fn fill_losses(work: &mut [u8], w: u32, h: u32, mask: &[bool], loss: &[u8], 
             relax(&mut src, x, y, -1, 0);
         }
     }
-    let mut n = 0;
-    for i in 0..w * h {
-        if mask[i] && is_loss(work[i]) {
-            let s = src[i];
-            // Sources are never loss, so reading them after earlier fills is still right.
-            work[i] = if s == NONE { background } else { work[s.1 as usize * w + s.0 as usize] };
-            n += 1;
+    let targets: Vec<usize> = (0..w * h).filter(|&i| fill(i)).collect();
+    for &i in &targets {
+        let s = src[i];
+        // Sources are never filled, so reading them after earlier fills is still right.
+        work[i] = if s == NONE { background } else { work[s.1 as usize * w + s.0 as usize] };
+    }
+    targets.len()
+}
+
+/// How far out from a chip (pixels, Chebyshev) its rim may be untrustworthy: camera pixels
+/// that mix clay and paint, blurred by up to a pixel.
+const RIM: u32 = 2;
+
+/// Per pixel, whether it lies on the rim of a loss component (within [`RIM`] pixels of it,
+/// inside the mask, not loss) with a class that does not continue outwards: no pixel of the
+/// same class just beyond the rim (at distance `RIM + 1`, within `RIM` pixels of it), though
+/// such pixels exist there. A paint edge or a line that crosses the chip continues beyond the
+/// rim; a misclassified mix does not. Each pixel belongs to its nearest loss component
+/// (breadth-first from all losses; ties to the first in scan order), so neighbouring chips do
+/// not vouch for each other's rims.
+fn suspect_rims(work: &[u8], w: usize, h: usize, mask: &[bool], is_loss: &dyn Fn(u8) -> bool) -> Vec<bool> {
+    let n = w * h;
+    let usable = |i: usize| mask[i] && work[i] != MASKED;
+    // Loss components (8-connected) and breadth-first distance from them.
+    let mut comp = vec![u32::MAX; n];
+    let mut dist = vec![u32::MAX; n];
+    let mut queue = std::collections::VecDeque::new();
+    let mut count = 0u32;
+    let neighbours = |i: usize| {
+        let (x, y) = ((i % w) as i64, (i / w) as i64);
+        (-1i64..=1).flat_map(move |dy| (-1i64..=1).map(move |dx| (x + dx, y + dy))).filter_map(
+            move |(nx, ny)| {
+                (nx >= 0 && ny >= 0 && nx < w as i64 && ny < h as i64 && (nx, ny) != (x, y))
+                    .then(|| ny as usize * w + nx as usize)
+            },
+        )
+    };
+    for start in 0..n {
+        if comp[start] != u32::MAX || !usable(start) || !is_loss(work[start]) {
+            continue;
+        }
+        let mut stack = vec![start];
+        comp[start] = count;
+        while let Some(i) = stack.pop() {
+            dist[i] = 0;
+            queue.push_back(i);
+            for j in neighbours(i) {
+                if comp[j] == u32::MAX && usable(j) && is_loss(work[j]) {
+                    comp[j] = count;
+                    stack.push(j);
+                }
+            }
+        }
+        count += 1;
+    }
+    queue.make_contiguous().sort_unstable();
+    while let Some(i) = queue.pop_front() {
+        if dist[i] > RIM {
+            continue;
+        }
+        for j in neighbours(i) {
+            if dist[j] == u32::MAX && usable(j) {
+                dist[j] = dist[i] + 1;
+                comp[j] = comp[i];
+                queue.push_back(j);
+            }
         }
     }
-    n
+    (0..n)
+        .map(|i| {
+            if !(1..=RIM).contains(&dist[i]) || is_loss(work[i]) {
+                return false;
+            }
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            let r = RIM as i64;
+            let mut beyond = false;
+            for ny in (y - r).max(0)..=(y + r).min(h as i64 - 1) {
+                for nx in (x - r).max(0)..=(x + r).min(w as i64 - 1) {
+                    let j = ny as usize * w + nx as usize;
+                    if dist[j] == RIM + 1 && comp[j] == comp[i] {
+                        if work[j] == work[i] {
+                            return false;
+                        }
+                        beyond = true;
+                    }
+                }
+            }
+            beyond
+        })
+        .collect()
 }
 
 /// Puts back the original class wherever the restored one is brighter than the original
@@ -224,6 +313,35 @@ mod tests {
         mask[17] = false;
         assert_eq!(fill_losses(&mut l, 6, 3, &mask, &[9], 0), 8);
         assert_eq!(l, vec![1, 1, 1, 2, 2, 2, 1, 1, 1, 2, 2, 2, 1, 1, 1, 2, 2, 9]);
+    }
+
+    #[test]
+    fn a_chip_takes_the_surrounding_colour_not_its_misclassified_rim() {
+        // Class 1 paint with a 3x3 chip (9); the chip's rim pixels on its left were
+        // classified as class 3 (mixed clay and paint read as a dark paint) that is nowhere
+        // else; a class-2 line crosses the chip from top to bottom.
+        let (w, h) = (15usize, 11usize);
+        let mut l = vec![1u8; w * h];
+        for y in 4..7 {
+            for x in 6..9 {
+                l[y * w + x] = 9;
+            }
+            l[y * w + 5] = 3;
+        }
+        for y in 0..h {
+            if l[y * w + 7] != 9 {
+                l[y * w + 7] = 2;
+            }
+        }
+        let mask = vec![true; w * h];
+        let filled = fill_losses(&mut l, w as u32, h as u32, &mask, &[9], 0);
+        assert_eq!(filled, 9 + 3, "the chip and its three suspect rim pixels");
+        for y in 4..7 {
+            assert_eq!(l[y * w + 5], 1, "rim pixel ({}, {y}) takes the surrounding paint", 5);
+            assert_eq!(l[y * w + 7], 2, "the line continues through the chip");
+            assert_eq!(l[y * w + 6], 1);
+        }
+        assert!(!l.contains(&3), "the rim's class is gone");
     }
 
     #[test]

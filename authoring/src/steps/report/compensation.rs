@@ -35,8 +35,15 @@ impl Page<'_> {
              each projector pixel reaches (geometry and correspondences), each projector's lux scale \
              (from the lux-meter reading), its response curves and black level, and the room light. \
              Move, refocus or re-lamp a projector, or change the room light, and the stage must be \
-             calibrated again. The bound is on illuminance at the object's surface as the camera \
-             saw it, not on light elsewhere; exposure over time (lux-hours) is the appliance's \
+             calibrated again. The bound covers the whole surface a projector pixel's light can \
+             land on, not only the points the camera saw head-on: each patch's coefficient is the \
+             worst over the stretch of surface its pixels span (the nearest distance and the most \
+             head-on normal among its neighbours, a surface facing the projector where the camera \
+             sees it at more than 75°), and pixels whose light would land on surface the model \
+             does not know (unseen, not reconstructed, past a silhouette) stay black, their blur \
+             charged as light on a surface facing the projector at 80 % of the distance of the \
+             known surface around it. So it assumes no unseen part of the object stands that much \
+             nearer to a projector than the surface seen beside it. Exposure over time (lux-hours) is the appliance's \
              ledger's business, under the bundle's policy (see <a href=\"#bundle\">Bundle</a>).</p>\n",
         );
         for s in self.inp.scenes.clone() {
@@ -80,12 +87,15 @@ impl Page<'_> {
              {} lx. The black levels and room light alone give up to {} lx. Every pixel the frames \
              light is vouched for by the certificate ({} that were not were set black). The \
              appliance repeats this check when it loads the bundle and refuses the scene if it \
-             fails.</p>",
+             fails. {} projector pixels whose light would have landed on surface the model does \
+             not know were kept black; {} certificate points charge their neighbours' blur.</p>",
             st.certificate_points,
             num(st.room_lux, 2),
             num(limit, 2),
             num(st.peak_black_lux, 2),
             st.unvouched_pixels,
+            st.unseen_dark_pixels,
+            st.unseen_points,
             r = sm.certificate_reduction
         );
         self.push(r##"<p>It holds <a href="#assumptions">under the assumptions above</a>.</p>"##);
