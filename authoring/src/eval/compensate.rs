@@ -348,3 +348,37 @@ mod tests {
         assert!(rows.iter().any(|r| r.name.contains("m = inf: mean luminance")));
     }
 }
+
+/// The light bound over the whole surface on the built-in scenes (issue "The light bound on
+/// physics we did not write"): the true peak wherever the light lands, the camera's far side
+/// and grazing silhouettes included, stays under E_bound with the true stage model.
+#[cfg(test)]
+mod whole_surface {
+    use super::*;
+
+    #[test]
+    fn true_peak_over_the_whole_surface_stays_under_the_bound_on_every_scene() {
+        let p = Params::new(150.0, Exponent::Finite(8.0), 0.05).unwrap();
+        for scene in SceneName::ALL {
+            for seed in [1, 5] {
+                // Coarse projectors make each pixel's footprint large: the hardest case.
+                let cfg = SceneConfig { scene, seed, camera: [200, 150], projector: [160, 120], ..SceneConfig::default() };
+                let stage = VirtualStage::new(&cfg).unwrap();
+                let comp = compensate::compensate(&stage.truth(), &pristine_target(&stage), &p).unwrap();
+                let peak = stage.surface_peak(&comp.frames).unwrap();
+                assert!(
+                    peak.lux <= p.e_bound_lux,
+                    "{} seed {seed}: true peak {:.1} lx at {:?} (projector {} pixel {:?}) > {} lx",
+                    scene.name(),
+                    peak.lux,
+                    peak.point_mm,
+                    peak.projector,
+                    peak.projector_px,
+                    p.e_bound_lux
+                );
+                // The bound does not darken the object: most of it is still lit.
+                assert!(comp.stats.covered_points > 1000, "{}", comp.stats.covered_points);
+            }
+        }
+    }
+}
