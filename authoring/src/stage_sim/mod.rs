@@ -813,11 +813,11 @@ impl VirtualStage {
         let (x, n) = (&hit.point, &hit.normal);
         let stray = self.setup.stray_lux;
         let mut e = [stray; 3];
-        if let (Some(b), Some(field)) = (&self.bounce, field) {
-            if let Some(at) = b.transfer.interp(&self.setup.scene, hit.solid, hit.part, x) {
-                let v = bounce::sample(field, &at);
-                (0..3).for_each(|c| e[c] += v[c] as f64);
-            }
+        if let (Some(b), Some(field)) = (&self.bounce, field)
+            && let Some(at) = b.transfer.interp(&self.setup.scene, hit.solid, hit.part, x)
+        {
+            let v = bounce::sample(field, &at);
+            (0..3).for_each(|c| e[c] += v[c] as f64);
         }
         for (k, (p, light)) in self.setup.projectors.iter().zip(lights).enumerate() {
             let to = p.centre - x;
@@ -957,8 +957,8 @@ impl VirtualStage {
         for (i, range) in &self.sub.pixels {
             let mut v = [0.0f64; 3];
             for s in range.clone() {
-                for c in 0..3 {
-                    v[c] += self.sub.albedo[s][c] as f64 * (e.sub[s][c] as f64 + room);
+                for (c, v) in v.iter_mut().enumerate() {
+                    *v += self.sub.albedo[s][c] as f64 * (e.sub[s][c] as f64 + room);
                 }
             }
             data[*i] = v.map(|v| ((k * v / SUB_COUNT as f64) as f32).min(1.0));
