@@ -63,9 +63,10 @@ pub enum EvalStep {
         #[arg(long)]
         stage: PathBuf,
     },
-    /// Compensation on every built-in scene (true stage model, pristine paint as the target):
-    /// CIEDE2000 of the true visitor view, true peak irradiance against E_bound, the m
-    /// trade-off.
+    /// Compensation on every built-in scene and the vase on a plinth (true stage model,
+    /// pristine paint as the target): CIEDE2000 of the true visitor view, the true peak
+    /// irradiance over the whole lit surface against E_bound (the peak at camera pixels as
+    /// information), the m trade-off.
     Compensate {
         #[arg(long, default_value_t = 1)]
         seed: u64,

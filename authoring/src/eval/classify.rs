@@ -279,7 +279,15 @@ pub struct EvalCase {
 /// Renders a built-in scene's diffusely lit photo in memory (as the capture's `photo.png`:
 /// all projectors black, room light on, camera noise) with its deteriorated labels.
 pub fn scene_case(scene: SceneName, camera: [u32; 2], seed: u64) -> Result<EvalCase, StageSimError> {
-    let cfg = SceneConfig { scene, seed, camera, projector: [1400, 1050], projectors: 3, deteriorate: true };
+    let cfg = SceneConfig {
+        scene,
+        seed,
+        camera,
+        projector: [1400, 1050],
+        projectors: 3,
+        deteriorate: true,
+        plinth: false,
+    };
     let stage = VirtualStage::new(&cfg)?;
     let photo = stage.capture(&stage.black_frames(), true, 0)?;
     let labels: Vec<u8> = stage.pixels().iter().map(|p| p.label).collect();

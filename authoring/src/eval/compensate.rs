@@ -47,7 +47,8 @@ impl TruePhysics for VirtualStage {
 }
 
 /// The ideal restoration of a virtual stage's object as the camera should see it: its
-/// pristine paint (albedo), 0 off the object.
+/// pristine paint (albedo, the area mean on mixed pixels), 0 off the object and on the
+/// plinth.
 pub fn pristine_target(stage: &VirtualStage) -> LinearImage {
     let cam = stage.camera();
     let data =
@@ -55,18 +56,27 @@ pub fn pristine_target(stage: &VirtualStage) -> LinearImage {
     LinearImage { width: cam.width, height: cam.height, data }
 }
 
-/// Every built-in scene at an evaluation size (camera 480x360, projectors 560x420): the
-/// object's pristine paint as the target, compensated with the TRUE stage model, judged with
-/// the true physics.
+/// Every built-in scene at an evaluation size (camera 480x360, projectors 560x420), and the
+/// vase again standing on the grey plinth: the object's pristine paint as the target (0 on
+/// the plinth, which is not to be lit), compensated with the TRUE stage model (geometry,
+/// responses; it knows nothing of interreflection), judged with the true physics.
 pub fn evaluate_builtin(seed: u64, params: &Params) -> Result<Vec<Metric>, CompensateError> {
     let mut rows = Vec::new();
-    for scene in SceneName::ALL {
-        let cfg =
-            SceneConfig { scene, seed, camera: [480, 360], projector: [560, 420], ..SceneConfig::default() };
+    let cases = SceneName::ALL.into_iter().map(|scene| (scene, false)).chain([(SceneName::Vase, true)]);
+    for (scene, plinth) in cases {
+        let cfg = SceneConfig {
+            scene,
+            seed,
+            camera: [480, 360],
+            projector: [560, 420],
+            plinth,
+            ..SceneConfig::default()
+        };
         let stage = VirtualStage::new(&cfg).expect("built-in scene configuration is valid");
         let model = stage.truth();
         let target = pristine_target(&stage);
-        rows.extend(evaluate(scene.name(), &stage, &model, &target, params)?);
+        let label = if plinth { format!("{} on a plinth", scene.name()) } else { scene.name().to_string() };
+        rows.extend(evaluate(&label, &stage, &model, &target, params)?);
     }
     Ok(rows)
 }

@@ -148,6 +148,7 @@ fn open_or_create(args: &GuiArgs) -> Result<Opened> {
             projector: args.projector.0,
             projectors: 3,
             deteriorate: true,
+            plinth: false,
         };
         scene.validate()?;
         if args.photo_only {

@@ -26,6 +26,7 @@ fn template() -> &'static Path {
             projector: [160, 120],
             projectors: 3,
             deteriorate: true,
+            plinth: false,
         };
         let acq = AcquireConfig { dot_spacing: 4, ramp_levels: 5, ..AcquireConfig::default() };
         let opened = Project::create_virtual(&dir, &scene, &acq).unwrap();

@@ -6,6 +6,7 @@
 //! and for every projector the pixel footprint and the factor `lux_at_1m * cos / d^2`, zero
 //! where the projector cannot see the point), so each capture is a cheap gather.
 
+pub mod bounce;
 pub mod geometry;
 pub mod optics;
 pub mod paint;
@@ -136,6 +137,10 @@ pub struct SceneConfig {
     pub projectors: u32,
     /// Whether the object is deteriorated (otherwise it shows its pristine paint).
     pub deteriorate: bool,
+    /// Whether the object stands on a grey plinth (seen and lit, not part of the object,
+    /// reflecting light onto it). Absent in older configs: no plinth.
+    #[serde(default)]
+    pub plinth: bool,
 }
 
 impl Default for SceneConfig {
@@ -147,6 +152,7 @@ impl Default for SceneConfig {
             projector: [1400, 1050],
             projectors: 3,
             deteriorate: true,
+            plinth: false,
         }
     }
 }
@@ -198,7 +204,25 @@ pub struct Setup {
     pub diffuse_lux: f64,
     /// Stray room light that is always there, lux.
     pub stray_lux: f64,
+    /// The support the object stands on, if any (one of `scene`'s solids).
+    pub plinth: Option<Plinth>,
 }
+
+/// A round grey plinth: a solid of the scene that is not the object. Its top must be the
+/// base plane of solid 0, centred on its axis (the interreflection model assumes so).
+#[derive(Clone, Debug)]
+pub struct Plinth {
+    /// Index of the plinth in the scene's solids.
+    pub solid: usize,
+    pub albedo: f32,
+    /// Radius of its top, mm.
+    pub radius: f64,
+}
+
+/// The built-in plinth: a 320 mm radius, 60 mm tall disc of grey (albedo 0.5).
+pub const PLINTH_RADIUS_MM: f64 = 320.0;
+pub const PLINTH_HEIGHT_MM: f64 = 60.0;
+pub const PLINTH_ALBEDO: f32 = 0.5;
 
 /// Centre of the object in the camera frame, mm.
 pub const OBJECT_CENTRE: [f64; 3] = [0.0, 0.0, 900.0];
@@ -213,7 +237,18 @@ impl Setup {
         let up = V3::new(0.0, -down.cos(), -down.sin());
         let profile = cfg.scene.profile();
         let height = profile.height();
-        let solid = Solid::new(profile, centre - up * (height * 0.5), up, -centre);
+        let base = centre - up * (height * 0.5);
+        let solid = Solid::new(profile, base, up, -centre);
+        let mut solids = vec![solid];
+        let plinth = cfg.plinth.then(|| {
+            solids.push(Solid::new(
+                Profile::Cylinder { radius: PLINTH_RADIUS_MM, height: PLINTH_HEIGHT_MM },
+                base - up * PLINTH_HEIGHT_MM,
+                up,
+                -centre,
+            ));
+            Plinth { solid: 1, albedo: PLINTH_ALBEDO, radius: PLINTH_RADIUS_MM }
+        });
         let camera_spec = CameraSpec::default();
         let n = cfg.projectors as usize;
         let projector_specs: Vec<ProjectorSpec> =
@@ -223,13 +258,18 @@ impl Setup {
             .map(|s| SimProjector::from_spec(s, cfg.projector[0], cfg.projector[1], &centre, &up))
             .collect();
         Ok(Self {
-            label: format!("virtual stage: {}, seed {}", cfg.scene.name(), cfg.seed),
+            label: format!(
+                "virtual stage: {}{}, seed {}",
+                cfg.scene.name(),
+                if cfg.plinth { " on a plinth" } else { "" },
+                cfg.seed
+            ),
             seed: cfg.seed,
             camera: camera_spec.intrinsics(cfg.camera[0], cfg.camera[1]),
             camera_spec,
             projectors,
             projector_specs,
-            scene: Scene { solids: vec![solid] },
+            scene: Scene { solids },
             design: cfg.scene.design(),
             deterioration: if cfg.deteriorate {
                 Deterioration::generate(cfg.seed, height)
@@ -238,8 +278,18 @@ impl Setup {
             },
             diffuse_lux: 350.0,
             stray_lux: 0.5,
+            plinth,
         })
     }
+}
+
+/// What a camera pixel mostly sees.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Seen {
+    Nothing,
+    Object,
+    /// The plinth: lit and seen like the object, but not part of it (label 255).
+    Plinth,
 }
 
 /// What the camera pixel sees, fixed for the scene.
@@ -257,6 +307,17 @@ pub struct PixelTruth {
     pub cracked: bool,
     pub stain: f32,
     pub fade: f32,
+    /// Fraction of the pixel's area on the object: 1 inside it, 0 where the pixel sees none
+    /// of it, between on its silhouette.
+    pub coverage: f32,
+    /// Whether the pixel's area holds more than one surface or paint (chip rims, paint
+    /// edges, silhouettes): it was sub-sampled, `albedo` is the area mean (no object counts
+    /// 0), labels and wear are the majority of the object's sub-samples, `label` is 255 when
+    /// less than half of the pixel is on the object, and `point`/`normal` are still the
+    /// centre ray's.
+    pub mixed: bool,
+    /// Object, plinth or nothing: what most of the pixel's area sees.
+    pub seen: Seen,
 }
 
 impl PixelTruth {
@@ -271,8 +332,12 @@ impl PixelTruth {
         cracked: false,
         stain: 0.0,
         fade: 0.0,
+        coverage: 0.0,
+        mixed: false,
+        seen: Seen::Nothing,
     };
 
+    /// Whether (most of) the pixel is on the object; false on the plinth and off both.
     pub fn is_object(&self) -> bool {
         self.label != 255
     }
@@ -329,9 +394,92 @@ pub struct VirtualStage {
     pixels: Vec<PixelTruth>,
     /// Per projector, per camera pixel.
     samples: Vec<Vec<Sample>>,
-    /// Per projector, per camera pixel: irradiance (lux) while the projector shows black.
-    black_lux: Vec<Vec<[f32; 3]>>,
+    /// The sub-samples of pixels whose area spans a geometric edge.
+    sub: SubSamples,
+    /// Per projector: irradiance (lux) while the projector shows black.
+    black_lux: Vec<Lux>,
+    /// Interreflection from the plinth, when there is one.
+    bounce: Option<BounceState>,
 }
+
+/// The plinth's interreflection as the stage uses it.
+#[derive(Debug)]
+struct BounceState {
+    transfer: bounce::Bounce,
+    /// Per projector, per plinth patch: how the projector lights it (point sample: `u`, `v`,
+    /// `g`; `g` is 0 where it does not).
+    patches: Vec<Vec<Sample>>,
+    /// Where each camera pixel's and sub-sample's point falls on the receiver grid.
+    pixel: Vec<Option<bounce::Interp>>,
+    sub: Vec<Option<bounce::Interp>>,
+}
+
+/// Sub-pixels per side of a mixed camera pixel.
+const SUB_N: usize = 4;
+/// Sub-samples of a mixed camera pixel.
+const SUB_COUNT: usize = SUB_N * SUB_N;
+/// Depth difference (mm) between neighbouring probes of one pixel that counts as an edge
+/// (an occluding contour); a grazing surface changes depth by a few mm across a pixel.
+const DEPTH_JUMP_MM: f64 = 5.0;
+
+/// Sub-samples of the camera pixels whose area spans a geometric edge (a silhouette, an
+/// occluding contour, a change of solid or part): there the irradiance differs across the
+/// pixel, so each sub-sample is lit on its own. Pixels mixed only in paint keep one
+/// irradiance (it is smooth across them) and an area-mean albedo.
+#[derive(Debug, Default)]
+struct SubSamples {
+    /// Per such pixel: its index and the range of its sub-samples that hit a surface
+    /// (the others see nothing and contribute 0 to its value).
+    pixels: Vec<(usize, std::ops::Range<usize>)>,
+    /// Per sub-sample that hit a surface.
+    albedo: Vec<[f32; 3]>,
+    /// Per projector, per sub-sample.
+    samples: Vec<Vec<Sample>>,
+}
+
+/// Irradiance (lux per channel) from one projector at every camera pixel and sub-sample.
+#[derive(Debug, Clone)]
+struct Lux {
+    /// Per camera pixel; for a pixel with sub-samples, their mean over those that hit.
+    pixel: Vec<[f32; 3]>,
+    /// Per sub-sample ([`SubSamples`]).
+    sub: Vec<[f32; 3]>,
+    /// Per plinth patch (direct light on it; empty without a plinth).
+    patch: Vec<[f32; 3]>,
+}
+
+/// What one ray from the camera found, reduced to what tells edges apart.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Probe {
+    /// Solid, part, deteriorated label, chipped, cracked; None for no hit.
+    key: Option<(usize, Part, u8, bool, bool)>,
+    t: f64,
+}
+
+impl Probe {
+    fn new(hit: Option<&geometry::Hit>, truth: &PixelTruth) -> Self {
+        Self {
+            key: hit.map(|h| (h.solid, h.part, truth.label, truth.chipped, truth.cracked)),
+            t: hit.map_or(f64::INFINITY, |h| h.t),
+        }
+    }
+
+    fn same_geometry(&self, o: &Self) -> bool {
+        match (self.key, o.key) {
+            (None, None) => true,
+            (Some(a), Some(b)) => a.0 == b.0 && a.1 == b.1 && (self.t - o.t).abs() < DEPTH_JUMP_MM,
+            _ => false,
+        }
+    }
+
+    fn same(&self, o: &Self) -> bool {
+        self.same_geometry(o) && self.key == o.key
+    }
+}
+
+/// A camera pixel as built: its representative hit (the centre ray's), its truth, and for a
+/// geometrically mixed pixel its sub-samples' hits and truths with their positions.
+type BuiltPixel = (Option<geometry::Hit>, PixelTruth, Option<Vec<(geometry::Hit, PixelTruth, [f64; 2])>>);
 
 impl VirtualStage {
     /// Builds a built-in scene.
@@ -347,31 +495,98 @@ impl VirtualStage {
         let (w, h) = (cam.width as usize, cam.height as usize);
         let palette = setup.design.palette();
         let far = 1.0e5;
-        let hits: Vec<Option<geometry::Hit>> = (0..w * h)
+        let look = |x: f64, y: f64| {
+            let hit = setup.scene.cast(&V3::zeros(), &ray(&cam, x, y), far);
+            let truth = hit.map_or(PixelTruth::EMPTY, |hit| surface(&setup, &palette, &hit));
+            (hit, truth)
+        };
+        // Probes at the pixel corners (shared between neighbours: about one more ray per
+        // pixel) find the pixels whose area holds more than one surface or paint.
+        let cw = w + 1;
+        let corners: Vec<Probe> = (0..cw * (h + 1))
             .into_par_iter()
             .map(|i| {
-                let (x, y) = ((i % w) as f64, (i / w) as f64);
-                setup.scene.cast(&V3::zeros(), &ray(&cam, x, y), far)
+                let (hit, truth) = look((i % cw) as f64 - 0.5, (i / cw) as f64 - 0.5);
+                Probe::new(hit.as_ref(), &truth)
             })
             .collect();
-        let pixels: Vec<PixelTruth> = hits
-            .par_iter()
-            .map(|hit| hit.map_or(PixelTruth::EMPTY, |hit| surface(&setup, &palette, &hit)))
+        let built: Vec<BuiltPixel> = (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let (hit, truth) = look(x as f64, y as f64);
+                let centre = Probe::new(hit.as_ref(), &truth);
+                let around = [y * cw + x, y * cw + x + 1, (y + 1) * cw + x, (y + 1) * cw + x + 1];
+                if around.iter().all(|&c| corners[c].same(&centre)) {
+                    return (hit, truth, None);
+                }
+                mixed_pixel(&setup, &palette, &cam, x, y, hit, truth, &corners, &around)
+            })
             .collect();
+        let footprint = |p: &SimProjector, x: f64, y: f64, hit: &geometry::Hit, half: f64| {
+            sample(&setup.scene, &cam, p, x, y, hit, half)
+        };
         let samples: Vec<Vec<Sample>> = setup
             .projectors
             .iter()
             .map(|p| {
-                hits.par_iter()
+                built
+                    .par_iter()
                     .enumerate()
-                    .map(|(i, hit)| match hit {
-                        Some(hit) => sample(&setup.scene, &cam, p, (i % w) as f64, (i / w) as f64, hit),
+                    .map(|(i, (hit, _, _))| match hit {
+                        Some(hit) => footprint(p, (i % w) as f64, (i / w) as f64, hit, 0.5),
                         None => Sample::default(),
                     })
                     .collect()
             })
             .collect();
-        let mut stage = Self { setup, config: None, palette, pixels, samples, black_lux: vec![] };
+        let mut sub = SubSamples::default();
+        let mut sub_hits = Vec::new();
+        for (i, (_, _, subs)) in built.iter().enumerate() {
+            if let Some(subs) = subs {
+                let start = sub.albedo.len();
+                for (hit, truth, at) in subs {
+                    sub.albedo.push(truth.albedo);
+                    sub_hits.push((i, *hit, *at));
+                }
+                sub.pixels.push((i, start..sub.albedo.len()));
+            }
+        }
+        let half = 0.5 / SUB_N as f64;
+        sub.samples = setup
+            .projectors
+            .iter()
+            .map(|p| {
+                sub_hits
+                    .par_iter()
+                    .map(|(i, hit, at)| {
+                        footprint(p, (i % w) as f64 + at[0], (i / w) as f64 + at[1], hit, half)
+                    })
+                    .collect()
+            })
+            .collect();
+        let bounce = setup.plinth.as_ref().map(|plinth| {
+            let object = (0..setup.scene.solids.len()).find(|&i| i != plinth.solid).unwrap_or(0);
+            let transfer = bounce::Bounce::new(&setup.scene, object, plinth.radius, plinth.albedo as f64);
+            let patches = setup
+                .projectors
+                .iter()
+                .map(|p| {
+                    transfer
+                        .patches
+                        .par_iter()
+                        .map(|q| point_sample(&setup.scene, p, q, &transfer.up))
+                        .collect()
+                })
+                .collect();
+            let interp = |h: &geometry::Hit| transfer.interp(&setup.scene, h.solid, h.part, &h.point);
+            let pixel = built.par_iter().map(|(h, _, _)| h.as_ref().and_then(interp)).collect();
+            let sub = sub_hits.par_iter().map(|(_, h, _)| interp(h)).collect();
+            BounceState { transfer, patches, pixel, sub }
+        });
+        let pixels = built.into_iter().map(|(_, truth, _)| truth).collect();
+        let mut stage =
+            Self { setup, config: None, palette, pixels, samples, sub, black_lux: vec![], bounce };
         stage.black_lux = (0..stage.setup.projectors.len())
             .map(|k| {
                 let p = &stage.setup.projectors[k];
@@ -428,20 +643,35 @@ impl VirtualStage {
 
     /// Irradiance in lux at each camera pixel's surface point from projector `k` showing
     /// `frame` (black level included).
-    fn projector_lux(&self, k: usize, frame: &RgbImage) -> Vec<[f32; 3]> {
+    fn projector_lux(&self, k: usize, frame: &RgbImage) -> Lux {
         let p = &self.setup.projectors[k];
         let light = p.light(frame);
         let integ = Integrator::new(&light, p.width as usize, p.height as usize);
-        self.samples[k]
-            .par_iter()
-            .map(|s| {
-                if s.g <= 0.0 {
-                    return [0.0; 3];
-                }
-                let m = integ.box_mean(s.u as f64, s.v as f64, s.hx as f64, s.hy as f64);
-                m.map(|c| (c * s.g as f64) as f32)
-            })
-            .collect()
+        let gather = |s: &Sample| {
+            if s.g <= 0.0 {
+                return [0.0; 3];
+            }
+            let m = integ.box_mean(s.u as f64, s.v as f64, s.hx as f64, s.hy as f64);
+            m.map(|c| (c * s.g as f64) as f32)
+        };
+        let mut pixel: Vec<[f32; 3]> = self.samples[k].par_iter().map(gather).collect();
+        let sub: Vec<[f32; 3]> = self.sub.samples[k].par_iter().map(gather).collect();
+        self.sub_means(&mut pixel, &sub);
+        let patch = self.bounce.as_ref().map_or_else(Vec::new, |b| {
+            b.patches[k].iter().map(|s| point_light(&light, p, s).map(|v| v as f32)).collect()
+        });
+        Lux { pixel, sub, patch }
+    }
+
+    /// Sets each sub-sampled pixel to the mean of its sub-samples that hit a surface.
+    fn sub_means(&self, pixel: &mut [[f32; 3]], sub: &[[f32; 3]]) {
+        for (i, range) in &self.sub.pixels {
+            if !range.is_empty() {
+                let n = range.len() as f32;
+                pixel[*i] =
+                    sub[range.clone()].iter().fold([0.0; 3], |a, e| [0, 1, 2].map(|c| a[c] + e[c] / n));
+            }
+        }
     }
 
     /// What a lux meter reads (lux) held at camera pixel `pixel`'s surface point with its
@@ -483,9 +713,9 @@ impl VirtualStage {
             }
             let e = if white == Some(k) {
                 let p = &self.setup.projectors[k];
-                self.projector_lux(k, &RgbImage::from_pixel(p.width, p.height, image::Rgb([255; 3])))[i]
+                self.projector_lux(k, &RgbImage::from_pixel(p.width, p.height, image::Rgb([255; 3]))).pixel[i]
             } else {
-                self.black_lux[k][i]
+                self.black_lux[k].pixel[i]
             };
             let y = crate::color::luminance(e.map(f64::from));
             reading += y / cos_surface * sensor.dot(&dir(k)).max(0.0);
@@ -500,7 +730,10 @@ impl VirtualStage {
     pub fn lux_meter_session(&self) -> Result<Option<LuxMeterSession>, StageSimError> {
         let cam = &self.setup.camera;
         let (w, h) = (cam.width as usize, cam.height as usize);
-        let lit_by_all = |i: usize| self.samples.iter().all(|s| s[i].g > 0.0);
+        let lit_by_all = |i: usize| {
+            let p = &self.pixels[i];
+            p.is_object() && p.coverage >= 1.0 && self.samples.iter().all(|s| s[i].g > 0.0)
+        };
         let d = |i: usize| ((i % w) as f64 - cam.cx).powi(2) + ((i / w) as f64 - cam.cy).powi(2);
         let Some(i) =
             (0..w * h).filter(|&i| lit_by_all(i)).min_by(|&a, &b| d(a).total_cmp(&d(b)).then(a.cmp(&b)))
@@ -516,34 +749,76 @@ impl VirtualStage {
 
     /// Irradiance in lux per camera pixel from all projectors showing `frames` (their black
     /// level included, room light excluded). Zero where no object.
+    /// At a pixel whose area spans a geometric edge it is the mean over the surface it sees.
     pub fn irradiance(&self, frames: &[RgbImage]) -> Result<Vec<[f32; 3]>, StageSimError> {
+        Ok(self.total_lux(frames)?.pixel)
+    }
+
+    /// [`irradiance`](Self::irradiance) at every pixel and sub-sample.
+    fn total_lux(&self, frames: &[RgbImage]) -> Result<Lux, StageSimError> {
         self.check_frames(frames)?;
-        let n = self.pixels.len();
-        let mut total = vec![[0.0f32; 3]; n];
+        let mut total = Lux {
+            pixel: vec![[0.0f32; 3]; self.pixels.len()],
+            sub: vec![[0.0f32; 3]; self.sub.albedo.len()],
+            patch: vec![[0.0f32; 3]; self.bounce.as_ref().map_or(0, |b| b.transfer.patches.len())],
+        };
+        let add = |t: &mut Vec<[f32; 3]>, l: &[[f32; 3]]| {
+            t.par_iter_mut().zip(l.par_iter()).for_each(|(t, l)| {
+                for c in 0..3 {
+                    t[c] += l[c];
+                }
+            })
+        };
         for (k, f) in frames.iter().enumerate() {
             let computed;
-            let lux: &[[f32; 3]] = if f.as_raw().iter().all(|&v| v == 0) {
+            let lux: &Lux = if f.as_raw().iter().all(|&v| v == 0) {
                 &self.black_lux[k]
             } else {
                 computed = self.projector_lux(k, f);
                 &computed
             };
-            total.par_iter_mut().zip(lux.par_iter()).for_each(|(t, l)| {
-                for c in 0..3 {
-                    t[c] += l[c];
+            add(&mut total.pixel, &lux.pixel);
+            add(&mut total.sub, &lux.sub);
+            add(&mut total.patch, &lux.patch);
+        }
+        if let Some(b) = &self.bounce {
+            // One bounce: the plinth's direct light, reflected onto the object.
+            let field = b.transfer.field(&total.patch);
+            let bounce = |t: &mut [f32; 3], at: &Option<bounce::Interp>| {
+                if let Some(at) = at {
+                    let e = bounce::sample(&field, at);
+                    (0..3).for_each(|c| t[c] += e[c]);
                 }
-            });
+            };
+            total.pixel.par_iter_mut().zip(b.pixel.par_iter()).for_each(|(t, at)| bounce(t, at));
+            total.sub.par_iter_mut().zip(b.sub.par_iter()).for_each(|(t, at)| bounce(t, at));
+            let sub = std::mem::take(&mut total.sub);
+            self.sub_means(&mut total.pixel, &sub);
+            total.sub = sub;
         }
         Ok(total)
     }
 
     /// Point irradiance (lux per channel, room stray light included) at surface point `x` with
     /// outward normal `n` from every projector, each showing the light image in `lights`
-    /// (from [`SimProjector::light`]). Projector `lit_by` is known to reach `x` (its ray found
-    /// it), so its visibility test is skipped.
-    fn point_lux(&self, lights: &[Vec<[f32; 3]>], x: &V3, n: &V3, lit_by: Option<usize>) -> [f64; 3] {
+    /// (from [`SimProjector::light`]), plus the plinth's bounce from `field`. Projector
+    /// `lit_by` is known to reach `x` (its ray found it), so its visibility test is skipped.
+    fn point_lux(
+        &self,
+        lights: &[Vec<[f32; 3]>],
+        hit: &geometry::Hit,
+        lit_by: Option<usize>,
+        field: Option<&[[f32; 3]]>,
+    ) -> [f64; 3] {
+        let (x, n) = (&hit.point, &hit.normal);
         let stray = self.setup.stray_lux;
         let mut e = [stray; 3];
+        if let (Some(b), Some(field)) = (&self.bounce, field)
+            && let Some(at) = b.transfer.interp(&self.setup.scene, hit.solid, hit.part, x)
+        {
+            let v = bounce::sample(field, &at);
+            (0..3).for_each(|c| e[c] += v[c] as f64);
+        }
         for (k, (p, light)) in self.setup.projectors.iter().zip(lights).enumerate() {
             let to = p.centre - x;
             let d = to.norm();
@@ -569,13 +844,28 @@ impl VirtualStage {
     /// sub-pixel positions; at each first hit on the object the point irradiance from all
     /// projectors (visibility, cosine, inverse square, the blurred light image sampled
     /// bilinearly) plus the room's stray light is summed; the peak is the largest channel of
-    /// the largest sample (the scalar of [`crate::compensate::guarantee::bound_lux`]).
+    /// the largest sample (the scalar of [`crate::compensate::guarantee::bound_lux`]); the
+    /// plinth's interreflection is included where there is one, the plinth itself is not
+    /// the object and is not counted.
     /// Surface the camera cannot see (the far side, grazing silhouettes) counts as much as
     /// surface it can. Deterministic: ties go to the lowest projector, row, column, sub-pixel.
     pub fn surface_peak(&self, frames: &[RgbImage]) -> Result<SurfacePeak, StageSimError> {
         self.check_frames(frames)?;
         let lights: Vec<Vec<[f32; 3]>> =
             self.setup.projectors.iter().zip(frames).map(|(p, f)| p.light(f)).collect();
+        let field = self.bounce.as_ref().map(|b| {
+            let patch: Vec<[f32; 3]> = (0..b.transfer.patches.len())
+                .map(|i| {
+                    let mut e = [0.0f32; 3];
+                    for (k, p) in self.setup.projectors.iter().enumerate() {
+                        let l = point_light(&lights[k], p, &b.patches[k][i]);
+                        (0..3).for_each(|c| e[c] += l[c] as f32);
+                    }
+                    e
+                })
+                .collect();
+            b.transfer.field(&patch)
+        });
         let (centre, radius) = self.setup.scene.bounding_sphere();
         const SUB: [[f64; 2]; 4] = [[-0.25, -0.25], [0.25, -0.25], [-0.25, 0.25], [0.25, 0.25]];
         let mut best: Option<SurfacePeak> = None;
@@ -605,7 +895,7 @@ impl VirtualStage {
                                 continue;
                             }
                             n += 1;
-                            let rgb = self.point_lux(&lights, &hit.point, &hit.normal, Some(j));
+                            let rgb = self.point_lux(&lights, &hit, Some(j), field.as_deref());
                             let lux = rgb[0].max(rgb[1]).max(rgb[2]);
                             if best.as_ref().is_none_or(|b| lux > b.lux) {
                                 best = Some(SurfacePeak {
@@ -643,25 +933,36 @@ impl VirtualStage {
     }
 
     /// Whether solid `i` of the scene is part of the object (and not its support).
-    fn is_object_solid(&self, _i: usize) -> bool {
-        true
+    fn is_object_solid(&self, i: usize) -> bool {
+        self.setup.plinth.as_ref().is_none_or(|p| p.solid != i)
     }
 
     /// The noise-free camera image with `frames` shown and the room's diffuse light on or off:
     /// `gain_per_lux * albedo * (projector irradiance + room light)`, clipped at full scale.
+    /// A pixel integrates over its area: where that spans a geometric edge, each sub-sample
+    /// adds its own albedo times its own irradiance (sub-samples that see nothing add 0).
     pub fn render(&self, frames: &[RgbImage], diffuse: bool) -> Result<LinearImage, StageSimError> {
-        let e = self.irradiance(frames)?;
+        let e = self.total_lux(frames)?;
         let room = self.setup.stray_lux + if diffuse { self.setup.diffuse_lux } else { 0.0 };
         let k = self.setup.camera_spec.gain_per_lux;
         let cam = &self.setup.camera;
-        let data = self
+        let mut data: Vec<[f32; 3]> = self
             .pixels
             .par_iter()
-            .zip(e.par_iter())
+            .zip(e.pixel.par_iter())
             .map(|(p, e)| {
                 [0, 1, 2].map(|c| ((k * p.albedo[c] as f64 * (e[c] as f64 + room)) as f32).min(1.0))
             })
             .collect();
+        for (i, range) in &self.sub.pixels {
+            let mut v = [0.0f64; 3];
+            for s in range.clone() {
+                for (c, v) in v.iter_mut().enumerate() {
+                    *v += self.sub.albedo[s][c] as f64 * (e.sub[s][c] as f64 + room);
+                }
+            }
+            data[*i] = v.map(|v| ((k * v / SUB_COUNT as f64) as f32).min(1.0));
+        }
         Ok(LinearImage { width: cam.width, height: cam.height, data })
     }
 
@@ -810,6 +1111,17 @@ pub fn ray(cam: &CameraIntrinsics, x: f64, y: f64) -> V3 {
 }
 
 fn surface(setup: &Setup, palette: &Palette, hit: &geometry::Hit) -> PixelTruth {
+    let f = |v: V3| [v.x as f32, v.y as f32, v.z as f32];
+    if let Some(plinth) = setup.plinth.as_ref().filter(|p| p.solid == hit.solid) {
+        return PixelTruth {
+            point: f(hit.point),
+            normal: f(hit.normal),
+            albedo: [plinth.albedo; 3],
+            albedo_pristine: [plinth.albedo; 3],
+            seen: Seen::Plinth,
+            ..PixelTruth::EMPTY
+        };
+    }
     let solid = &setup.scene.solids[hit.solid];
     let (h, _, theta) = solid.local(&hit.point);
     let r = solid.radius_at(h);
@@ -820,7 +1132,6 @@ fn surface(setup: &Setup, palette: &Palette, hit: &geometry::Hit) -> PixelTruth 
     };
     let (albedo, label, wear) = setup.deterioration.apply(palette, pristine, theta, h, r);
     let albedo_pristine = palette.classes[pristine as usize].albedo;
-    let f = |v: V3| [v.x as f32, v.y as f32, v.z as f32];
     PixelTruth {
         point: f(hit.point),
         normal: f(hit.normal),
@@ -832,10 +1143,102 @@ fn surface(setup: &Setup, palette: &Palette, hit: &geometry::Hit) -> PixelTruth 
         cracked: wear.cracked,
         stain: wear.stain as f32,
         fade: wear.fade as f32,
+        coverage: 1.0,
+        mixed: false,
+        seen: Seen::Object,
     }
 }
 
-/// Where camera pixel `(x, y)`'s footprint lands on projector `p` and how strongly it is lit.
+/// Sub-samples camera pixel `(x, y)`, whose probes disagree, on a `SUB_N x SUB_N` grid
+/// and sums up its truth (see [`PixelTruth::mixed`]). Sub-samples that share the centre's
+/// geometry with all corner probes are taken on the centre hit's tangent plane (no ray
+/// cast: only the paint differs); otherwise every sub-sample is cast and kept, for
+/// per-sub-sample lighting.
+#[allow(clippy::too_many_arguments)]
+fn mixed_pixel(
+    setup: &Setup,
+    palette: &Palette,
+    cam: &CameraIntrinsics,
+    x: usize,
+    y: usize,
+    hit: Option<geometry::Hit>,
+    truth: PixelTruth,
+    corners: &[Probe],
+    around: &[usize; 4],
+) -> BuiltPixel {
+    let centre = Probe::new(hit.as_ref(), &truth);
+    let flat = around.iter().all(|&c| corners[c].same_geometry(&centre));
+    let offset = |j: usize| (j as f64 + 0.5) / SUB_N as f64 - 0.5;
+    let subs: Vec<(Option<geometry::Hit>, PixelTruth, [f64; 2])> = (0..SUB_COUNT)
+        .map(|j| {
+            let at = [offset(j % SUB_N), offset(j / SUB_N)];
+            let r = ray(cam, x as f64 + at[0], y as f64 + at[1]);
+            let h = match (&hit, flat) {
+                (Some(c), true) => {
+                    // The sub-ray on the centre hit's tangent plane: the same surface, and
+                    // within microns of it at a pixel's scale.
+                    let den = c.normal.dot(&r);
+                    (den.abs() > 1e-9).then(|| {
+                        let t = c.normal.dot(&c.point) / den;
+                        geometry::Hit { t, point: r * t, ..*c }
+                    })
+                }
+                (None, true) => None,
+                (_, false) => setup.scene.cast(&V3::zeros(), &r, 1.0e5),
+            };
+            let tr = h.map_or(PixelTruth::EMPTY, |h| surface(setup, palette, &h));
+            (h, tr, at)
+        })
+        .collect();
+    let n = SUB_COUNT as f32;
+    let object: Vec<&PixelTruth> = subs.iter().map(|s| &s.1).filter(|t| t.is_object()).collect();
+    let mean = |f: &dyn Fn(&PixelTruth) -> [f32; 3]| {
+        subs.iter().fold([0.0f32; 3], |a, s| {
+            let v = f(&s.1);
+            [0, 1, 2].map(|c| a[c] + v[c] / n)
+        })
+    };
+    // The most frequent value among the object's sub-samples; ties go to the lowest.
+    let majority = |f: &dyn Fn(&PixelTruth) -> u8| {
+        let mut count = [0u16; 256];
+        object.iter().for_each(|t| count[f(t) as usize] += 1);
+        (0..=255u8).rev().max_by_key(|&v| count[v as usize]).unwrap_or(255)
+    };
+    let m = object.len() as f32;
+    let on_object = object.len() * 2 >= SUB_COUNT;
+    let share = |f: &dyn Fn(&PixelTruth) -> bool| object.iter().filter(|t| f(t)).count() * 2 > object.len();
+    let avg = |f: &dyn Fn(&PixelTruth) -> f32| object.iter().map(|t| f(t)).sum::<f32>() / m.max(1.0);
+    let summed = PixelTruth {
+        point: truth.point,
+        normal: truth.normal,
+        albedo: mean(&|t| t.albedo),
+        albedo_pristine: mean(&|t| t.albedo_pristine),
+        label: if on_object { majority(&|t| t.label) } else { 255 },
+        label_pristine: if on_object { majority(&|t| t.label_pristine) } else { 255 },
+        chipped: on_object && share(&|t| t.chipped),
+        cracked: on_object && share(&|t| t.cracked),
+        stain: avg(&|t| t.stain),
+        fade: avg(&|t| t.fade),
+        coverage: m / n,
+        mixed: true,
+        seen: {
+            let count = |k: Seen| subs.iter().filter(|s| s.1.seen == k).count();
+            let (plinth, nothing) = (count(Seen::Plinth), count(Seen::Nothing));
+            if on_object {
+                Seen::Object
+            } else if plinth > 0 && plinth >= nothing {
+                Seen::Plinth
+            } else {
+                Seen::Nothing
+            }
+        },
+    };
+    let kept = (!flat).then(|| subs.iter().filter_map(|(h, t, at)| h.map(|h| (h, *t, *at))).collect());
+    (hit, summed, kept)
+}
+
+/// Where the footprint of the camera pixel (or sub-pixel, of half-width `half` pixels)
+/// centred at `(x, y)` lands on projector `p` and how strongly it is lit.
 fn sample(
     scene: &Scene,
     cam: &CameraIntrinsics,
@@ -843,6 +1246,7 @@ fn sample(
     x: f64,
     y: f64,
     hit: &geometry::Hit,
+    half: f64,
 ) -> Sample {
     let Some(uv) = p.project(&hit.point) else { return Sample::default() };
     if !p.on_image(uv) {
@@ -863,21 +1267,44 @@ fn sample(
         (den.abs() > 1e-9).then(|| r * (np / den)).and_then(|q| p.project(&q))
     };
     let (hx, hy) =
-        match (on_plane(x + 0.5, y), on_plane(x - 0.5, y), on_plane(x, y + 0.5), on_plane(x, y - 0.5)) {
+        match (on_plane(x + half, y), on_plane(x - half, y), on_plane(x, y + half), on_plane(x, y - half)) {
             (Some(a1), Some(a0), Some(b1), Some(b0)) => {
                 let (ax, ay) = (a1[0] - a0[0], a1[1] - a0[1]);
                 let (bx, by) = (b1[0] - b0[0], b1[1] - b0[1]);
                 (0.5 * (ax.abs() + bx.abs()), 0.5 * (ay.abs() + by.abs()))
             }
-            _ => (1.0, 1.0),
+            _ => (2.0 * half, 2.0 * half),
         };
     Sample {
         u: uv[0] as f32,
         v: uv[1] as f32,
-        hx: hx.clamp(0.05, 64.0) as f32,
-        hy: hy.clamp(0.05, 64.0) as f32,
+        hx: hx.clamp(0.05 * 2.0 * half, 64.0) as f32,
+        hy: hy.clamp(0.05 * 2.0 * half, 64.0) as f32,
         g: (p.lux_at_1m * cos / (d / 1000.0).powi(2)) as f32,
     }
+}
+
+/// How projector `p` lights the point `x` (outward normal `n`): its image position and
+/// `lux_at_1m * cos / d^2`, with `g` 0 where it cannot (behind, off the image, shadowed).
+fn point_sample(scene: &Scene, p: &SimProjector, x: &V3, n: &V3) -> Sample {
+    let to = p.centre - x;
+    let d = to.norm();
+    let cos = n.dot(&to) / d;
+    let Some(uv) = p.project(x) else { return Sample::default() };
+    if cos <= 0.0 || !p.on_image(uv) || !scene.visible(x, n, &p.centre) {
+        return Sample::default();
+    }
+    let g = (p.lux_at_1m * cos / (d / 1000.0).powi(2)) as f32;
+    Sample { u: uv[0] as f32, v: uv[1] as f32, hx: 0.0, hy: 0.0, g }
+}
+
+/// Point irradiance (lux per channel) of a [`point_sample`] from projector `p`'s light image.
+fn point_light(light: &[[f32; 3]], p: &SimProjector, s: &Sample) -> [f64; 3] {
+    if s.g <= 0.0 {
+        return [0.0; 3];
+    }
+    let l = optics::bilinear(light, p.width as usize, p.height as usize, s.u as f64, s.v as f64);
+    l.map(|c| c * s.g as f64)
 }
 
 /// Mixes a seed and a counter into a new seed (SplitMix64 finaliser).

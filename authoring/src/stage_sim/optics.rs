@@ -424,7 +424,8 @@ mod tests {
 
     #[test]
     fn projector_rays_invert_projection_and_bilinear_interpolates() {
-        let p = SimProjector::ideal(80, 60, 70.0, V3::new(100.0, -50.0, 0.0), V3::new(0.0, 0.0, 1000.0), 450.0);
+        let p =
+            SimProjector::ideal(80, 60, 70.0, V3::new(100.0, -50.0, 0.0), V3::new(0.0, 0.0, 1000.0), 450.0);
         for (u, v) in [(0.0, 0.0), (39.5, 29.5), (71.25, 12.75)] {
             let x = p.centre + p.ray(u, v) * 900.0;
             let uv = p.project(&x).unwrap();

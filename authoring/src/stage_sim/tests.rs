@@ -46,6 +46,7 @@ fn setup_of(solids: Vec<Solid>, proj: V3) -> Setup {
         deterioration: Deterioration::none(),
         diffuse_lux: 0.0,
         stray_lux: 0.0,
+        plinth: None,
     }
 }
 
@@ -84,6 +85,39 @@ fn surface_peak_counts_light_on_surface_the_camera_cannot_see() {
     setup.stray_lux = 2.0;
     let lit = VirtualStage::from_setup(setup).surface_peak(&f).unwrap();
     assert!((lit.lux - peak.lux - 2.0).abs() < 1e-9);
+}
+
+#[test]
+fn silhouette_pixels_integrate_their_area() {
+    // A disc of radius 100 mm at 1000 mm facing the camera: 8 px across at f = 80 px.
+    let disc = Solid::new(
+        Profile::Cylinder { radius: 100.0, height: 5.0 },
+        V3::new(0.0, 0.0, 1000.0),
+        V3::new(0.0, 0.0, 1.0),
+        V3::new(0.0, 1.0, 0.0),
+    );
+    let stage = VirtualStage::from_setup(setup_of(vec![disc], V3::zeros()));
+    let px = stage.pixels();
+    let area: f64 = px.iter().map(|p| p.coverage as f64).sum();
+    let want = std::f64::consts::PI * 8.0f64.powi(2);
+    assert!((area - want).abs() < 0.02 * want, "covered area {area} px vs {want}");
+    let mixed: Vec<usize> = (0..px.len()).filter(|&i| px[i].mixed).collect();
+    assert!((40..120).contains(&mixed.len()), "{} mixed pixels on a 50 px rim", mixed.len());
+    // Under light that is nearly uniform over the disc, a rim pixel shows its covered share
+    // of an inner pixel's value; the majority decides the label.
+    let img = stage.render(&frame([255; 3]), false).unwrap();
+    let inner = img.data[(23 * W + 31) as usize][1];
+    assert!(!px[(23 * W + 31) as usize].mixed && inner > 0.02, "inner {inner}");
+    let mut partial = 0;
+    for &i in &mixed {
+        let (p, v) = (&px[i], img.data[i][1]);
+        assert!((v - p.coverage * inner).abs() < 0.03 * inner, "pixel {i}: {v} vs {} of {inner}", p.coverage);
+        assert_eq!(p.is_object(), p.coverage >= 0.5, "pixel {i}: coverage {}", p.coverage);
+        partial += usize::from(p.coverage > 0.1 && p.coverage < 0.9);
+    }
+    assert!(partial > 20, "{partial} partly covered pixels");
+    // Pixels off the rim are whole: all object or nothing.
+    assert!(px.iter().filter(|p| !p.mixed).all(|p| p.coverage == if p.is_object() { 1.0 } else { 0.0 }));
 }
 
 #[test]
@@ -263,6 +297,13 @@ fn built_in_scenes_have_sensible_light_levels_and_truth() {
             let seen = truth.correspondences[k].iter().filter(|c| !c[0].is_nan()).count();
             assert!(seen > object / 3, "{scene:?}: projector {k} sees {seen} of {object}");
         }
+        // Paint edges, chips and the silhouette are sub-sampled: a thin share of the image.
+        let mixed: Vec<&PixelTruth> = stage.pixels().iter().filter(|p| p.mixed).collect();
+        // (At this tiny size a pixel is 3 mm across: the jar's dots make many of them mixed.)
+        assert!(mixed.len() > 50 && mixed.len() < object, "{scene:?}: {} mixed of {object}", mixed.len());
+        assert!(mixed.iter().all(|p| p.is_object() == (p.coverage >= 0.5)));
+        assert!(mixed.iter().any(|p| p.coverage > 0.0 && p.coverage < 1.0));
+        assert!(mixed.iter().any(|p| p.coverage == 1.0), "{scene:?}: no paint edges");
         // Deterioration changes some labels to clay, never more than a small part.
         let changed = stage.pixels().iter().filter(|p| p.label != p.label_pristine).count();
         assert!(changed > 0 && changed < object / 5, "{scene:?}: {changed} changed");
@@ -302,4 +343,69 @@ fn the_simulated_lux_meter_calibrates_the_true_lux_scale() {
     let w = stage.camera().width;
     let err = stage.lux_meter([off % w, off / w], Some(0), 0).unwrap_err();
     assert!(err.to_string().contains("not on the object"), "{err}");
+}
+
+#[test]
+fn configs_without_a_plinth_field_still_load() {
+    let json = r#"{"scene": "vase", "seed": 4, "camera": [160, 120], "projector": [128, 96],
+        "projectors": 3, "deteriorate": false}"#;
+    let cfg: SceneConfig = serde_json::from_str(json).unwrap();
+    assert!(!cfg.plinth);
+    let with: SceneConfig =
+        serde_json::from_str(&serde_json::to_string(&SceneConfig { plinth: true, ..cfg }).unwrap()).unwrap();
+    assert!(with.plinth);
+}
+
+#[test]
+fn the_plinth_is_seen_and_lit_but_not_object_and_lights_the_foot() {
+    let cfg = SceneConfig { camera: [240, 180], ..SceneConfig::tiny(SceneName::Vase, 5) };
+    let bare = VirtualStage::new(&cfg).unwrap();
+    let on = VirtualStage::new(&SceneConfig { plinth: true, ..cfg.clone() }).unwrap();
+    let px = on.pixels();
+    let plinth: Vec<usize> = (0..px.len()).filter(|&i| px[i].seen == Seen::Plinth).collect();
+    assert!(plinth.len() > px.len() / 50, "the camera sees the plinth: {} px", plinth.len());
+    assert!(plinth.iter().all(|&i| !px[i].is_object()));
+    // Whole plinth pixels have its points (mixed ones have the centre ray's, maybe none).
+    assert!(plinth.iter().filter(|&&i| !px[i].mixed).all(|&i| px[i].point[0].is_finite()));
+    assert!(px.iter().filter(|p| p.seen == Seen::Object).all(|p| p.is_object()));
+    // Lit by the projectors, so captures show it and calibration finds its geometry.
+    let mut frames = on.black_frames();
+    frames[1] = RgbImage::from_pixel(128, 96, Rgb([255; 3]));
+    let img = on.render(&frames, false).unwrap();
+    let bright = plinth.iter().filter(|&&i| !px[i].mixed && img.data[i][1] > 0.02).count();
+    assert!(bright > plinth.len() / 3, "{bright} of {} plinth pixels lit", plinth.len());
+    let truth = on.truth();
+    assert!(plinth.iter().filter(|&&i| !px[i].mixed).all(|&i| truth.points[i][0].is_finite()));
+    // One bounce: object pixels near the foot get a few per cent more light than without
+    // the plinth, near the top almost none.
+    let (e_on, e_bare) = (on.irradiance(&frames).unwrap(), bare.irradiance(&frames).unwrap());
+    let solid = &on.setup().scene.solids[0];
+    let (mut foot, mut top) = (vec![], vec![]);
+    for i in 0..px.len() {
+        let (a, b) = (&px[i], &bare.pixels()[i]);
+        if !a.is_object() || a.mixed || b.mixed || !b.is_object() || e_bare[i][1] < 50.0 {
+            continue;
+        }
+        let (h, _, _) = solid.local(&V3::from(a.point.map(f64::from)));
+        let gain = e_on[i][1] / e_bare[i][1] - 1.0;
+        assert!(gain >= -1e-4, "the plinth only adds light: pixel {i} {gain}");
+        if h < 40.0 {
+            foot.push(gain);
+        } else if h > 260.0 {
+            top.push(gain);
+        }
+    }
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len().max(1) as f32;
+    assert!(foot.len() > 20 && top.len() > 20, "{} foot, {} top pixels", foot.len(), top.len());
+    let (foot, top) = (mean(&foot), mean(&top));
+    // The vase's foot faces 20-30° down under its belly: it sees much of the lit plinth and
+    // gets little direct light (hand estimate for the middle projector: about 25-30 %).
+    assert!((0.01..0.6).contains(&foot), "bounce near the foot: {:.1} %", foot * 100.0);
+    assert!(top < foot / 3.0, "bounce near the top {:.2} % vs foot {:.2} %", top * 100.0, foot * 100.0);
+    // The surface peak counts the bounce too, and never the plinth itself.
+    let peak_on = on.surface_peak(&frames).unwrap();
+    let peak_bare = bare.surface_peak(&frames).unwrap();
+    assert!(peak_on.lux >= peak_bare.lux - 1e-6, "{} vs {}", peak_on.lux, peak_bare.lux);
+    let (h, _, _) = solid.local(&V3::from(peak_on.point_mm));
+    assert!((0.0..=300.0 + 1e-6).contains(&h), "the peak lies on the object, at height {h}");
 }

@@ -81,6 +81,7 @@ pub fn demo_configs(seed: u64) -> (SceneConfig, AcquireConfig) {
         projector: [1400, 1050],
         projectors: 3,
         deteriorate: true,
+        plinth: false,
     };
     let acq = AcquireConfig { dot_spacing: 8, ramp_levels: 9, ..AcquireConfig::default() };
     (scene, acq)

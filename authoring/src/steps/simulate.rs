@@ -83,6 +83,10 @@ pub struct Args {
     /// Simulate the object in its pristine state (no deterioration).
     #[arg(long)]
     pub pristine: bool,
+    /// Stand the object on a grey plinth: seen and lit like the object but not part of it,
+    /// and reflecting light onto it (one bounce of interreflection).
+    #[arg(long)]
+    pub plinth: bool,
 }
 
 impl Args {
@@ -94,6 +98,7 @@ impl Args {
             projector: self.projector.0,
             projectors: self.projectors,
             deteriorate: !self.pristine,
+            plinth: self.plinth,
         };
         scene.validate()?;
         let acq = self.patterns.config(AcquireConfig::default().settle)?;
