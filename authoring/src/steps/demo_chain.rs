@@ -159,6 +159,7 @@ pub fn run_chain(
         hints: None,
         picks: Some(picks_path.clone()),
         grid: "auto".into(),
+        mask: Some(mask_path.clone()),
         overwrite: super::Overwrite { force: true },
     };
     let rs = super::restore::restore_files(&rargs, progress)?;
