@@ -317,7 +317,7 @@ pub fn propose_from(
         }
         let region: Vec<bool> = labels.iter().map(|&l| l == best as u32).collect();
         let rest: Vec<bool> = (0..n).map(|i| g.valid[i] && !support[i] && !region[i]).collect();
-        let (removed, reason) = judge(&g, &plane, &region, &rest, params);
+        let (removed, reason) = judge(&g, &plane, &region, &rest, &support, params);
         let sink = if removed { &mut support } else { &mut tried };
         sink.iter_mut().zip(&region).for_each(|(s, &r)| *s |= r);
         planes.push(PlaneSummary {
@@ -342,11 +342,27 @@ pub fn propose_from(
     let mut mask = vec![false; n];
     let mut kept = Vec::new();
     let (mut dropped, mut dropped_pixels) = (0, 0);
-    if let Some(main) = main_component(&labels, &sizes, w, h) {
+    // Components the picture's border cuts are the surroundings (a wall, a floor) unless
+    // nothing else of size is there.
+    let mut border = vec![false; sizes.len()];
+    for (i, &l) in labels.iter().enumerate() {
+        if l != u32::MAX && on_border(i, w, h) {
+            border[l as usize] = true;
+        }
+    }
+    let rest_pixels: usize = sizes.iter().sum();
+    let inner: Vec<usize> = sizes
+        .iter()
+        .enumerate()
+        .map(|(k, &s)| if border[k] || (s as f64) < 0.02 * rest_pixels as f64 { 0 } else { s })
+        .collect();
+    let pick = if inner.iter().any(|&s| s > 0) { &inner } else { &sizes };
+    if let Some(main) = main_component(&labels, pick, w, h) {
         let zs = depth_range(&g, &labels, main as u32);
         for (k, &size) in sizes.iter().enumerate() {
             let keep = k == main
                 || (size as f64 >= params.secondary_fraction * sizes[main] as f64
+                    && (!border[k] || border[main])
                     && median_depth(&g, &labels, k as u32) <= zs.1);
             if keep {
                 kept.push(size);
@@ -621,7 +637,14 @@ fn ransac(g: &Grid, candidates: &[usize], params: &SegmentParams, rng: &mut ChaC
 /// border or the rest, and has something beside it standing in front of its plane (the object
 /// before a wall, on a plinth top or floor) or lies under something beside it in the picture
 /// (the front of a plinth under its top and the object).
-fn judge(g: &Grid, plane: &Plane, region: &[bool], rest: &[bool], params: &SegmentParams) -> (bool, String) {
+fn judge(
+    g: &Grid,
+    plane: &Plane,
+    region: &[bool],
+    rest: &[bool],
+    support: &[bool],
+    params: &SegmentParams,
+) -> (bool, String) {
     let w = g.w;
     let n = region.len();
     let h = n / w;
@@ -639,12 +662,14 @@ fn judge(g: &Grid, plane: &Plane, region: &[bool], rest: &[bool], params: &Segme
             ),
         );
     }
-    // Breadth: the region's narrower in-plane extent against the rest's largest extent.
+    // Breadth: the region's narrower in-plane extent against the rest's largest extent; a
+    // region the picture's border cuts (the front of a plinth, a floor) may look narrow.
+    let border = (0..n).any(|i| region[i] && on_border(i, w, h));
     let pts: Vec<[f64; 3]> = (0..n).filter(|&i| region[i]).map(|i| g.point(i)).collect();
     let rest_pts: Vec<[f64; 3]> = (0..n).filter(|&i| rest[i]).map(|i| g.point(i)).collect();
     let narrow = extents(&pts)[1];
     let object = extents(&rest_pts)[0];
-    if narrow < params.min_support_extent * object {
+    if !border && narrow < params.min_support_extent * object {
         return (
             false,
             format!(
@@ -663,19 +688,22 @@ fn judge(g: &Grid, plane: &Plane, region: &[bool], rest: &[bool], params: &Segme
     }
     let mut under = vec![0usize; sizes.len()];
     let mut over = vec![0usize; sizes.len()];
-    let mut adjacent = false;
+    let (mut under_support, mut over_any) = (0usize, 0usize);
+    let mut adjacent = border;
     for i in (0..n).filter(|&i| region[i]) {
         let (x, y) = (i % w, i / w);
-        adjacent |= x == 0 || y == 0 || x + 1 == w || y + 1 == h;
-        if let Some(j) = (1..=3usize).filter(|&d| y >= d).map(|d| i - d * w).find(|&j| rest[j]) {
-            under[labels[j] as usize] += 1;
+        match (1..=3usize).filter(|&d| y >= d).map(|d| i - d * w).find(|&j| rest[j] || support[j]) {
+            Some(j) if rest[j] => under[labels[j] as usize] += 1,
+            Some(_) => under_support += 1,
+            None => {}
         }
         if let Some(j) = (1..=3usize).filter(|&d| y + d < h).map(|d| i + d * w).find(|&j| rest[j]) {
             over[labels[j] as usize] += 1;
+            over_any += 1;
         }
         adjacent |= (x > 0 && rest[i - 1]) || (x + 1 < w && rest[i + 1]);
     }
-    adjacent |= under.iter().chain(&over).any(|&c| c > 0);
+    adjacent |= under_support > 0 || under.iter().chain(&over).any(|&c| c > 0);
     if !adjacent {
         return (false, "it touches neither the rest nor the picture's border".into());
     }
@@ -701,7 +729,15 @@ fn judge(g: &Grid, plane: &Plane, region: &[bool], rest: &[bool], params: &Segme
             );
         }
     }
+    if under_support > 0 && under_support >= 3 * over_any {
+        return (true, format!("it lies under a support already removed ({under_support} px of contact)"));
+    }
     (false, "nothing beside it stands in front of it or on it: part of the object".into())
+}
+
+fn on_border(i: usize, w: usize, h: usize) -> bool {
+    let (x, y) = (i % w, i / w);
+    x == 0 || y == 0 || x + 1 == w || y + 1 == h
 }
 
 /// Full extents (largest, middle) of a point set's spread, mm (uniform-width estimate).
@@ -1065,11 +1101,12 @@ mod tests {
             Outline { polygons: vec![vec![[80.0, 20.0], [160.0, 20.0], [160.0, 150.0], [80.0, 150.0]]] };
         let out = apply_outline(&seg, &outline, true).unwrap();
         let o = out.summary.outline.as_ref().unwrap();
-        assert_eq!(o.inside_pixels, 81 * 131);
+        // Columns 80..=160, rows 20..150 (a centre on the lower edge is outside).
+        assert_eq!(o.inside_pixels, 81 * 130);
         assert!(o.trimmed_pixels > 0);
         assert!(out.mask.iter().zip(&seg.support).all(|(m, s)| !(*m && *s)));
         let untrimmed = apply_outline(&seg, &outline, false).unwrap();
-        assert_eq!(untrimmed.summary.object_pixels, 81 * 131);
+        assert_eq!(untrimmed.summary.object_pixels, 81 * 130);
         assert!(matches!(apply_outline(&seg, &Outline::default(), true), Err(SegmentError::NoPolygon)));
         let bad = Outline { polygons: vec![vec![[0.0, 0.0], [1.0, 1.0]]] };
         assert!(matches!(apply_outline(&seg, &bad, true), Err(SegmentError::Polygon { index: 0, .. })));
