@@ -1232,8 +1232,8 @@ mod tests {
             let params = SegmentParams { seed, erode, ..SegmentParams::default() };
             match propose_from(&cam, &points, &normals, &params) {
                 Ok(seg) => {
-                    for i in 0..n {
-                        prop_assert!(!seg.mask[i] || points[i][2].is_finite(), "pixel {} not reconstructed", i);
+                    for (i, (m, p)) in seg.mask.iter().zip(&points).enumerate() {
+                        prop_assert!(!m || p[2].is_finite(), "pixel {} not reconstructed", i);
                     }
                     prop_assert_eq!(seg.summary.object_pixels, seg.mask.iter().filter(|&&m| m).count());
                     let again = propose_from(&cam, &points, &normals, &params).unwrap();
