@@ -17,5 +17,6 @@ pub mod imgio;
 pub mod patterns;
 pub mod relight;
 pub mod restore;
+pub mod segment;
 pub mod stage_model;
 pub mod stage_sim;

@@ -69,6 +69,7 @@ fn with_bar<T>(f: impl FnOnce(&dyn Progress) -> Result<T>) -> Result<T> {
 
 pub fn step(step: &StepCommand) -> Result<()> {
     match with_bar(|p| step.run(p))? {
+        StepSummary::Mask(s) => println!("{s}"),
         StepSummary::Classify(s) => println!("{s}"),
         StepSummary::Restore(s) => println!("{s}"),
         StepSummary::Compensate(s) => eprintln!("{s}"),

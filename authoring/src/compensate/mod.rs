@@ -71,6 +71,8 @@ pub enum CompensateError {
     NoGain { got: usize, want: usize },
     #[error("no object point is lit by any projector: the stage model has no coverage")]
     NoCoverage,
+    #[error("the object mask has {got} pixels, the target image {want} (both must be camera size)")]
+    MaskSize { got: usize, want: usize },
     #[error(
         "the independent light check refused the frames ({0}); this is a bug in compensation \
          — no frames were written"
@@ -403,8 +405,25 @@ pub struct Draft {
     pub by_sat: usize,
 }
 
-/// The object points compensation works on (covered, calibrated, finite target), in raster
-/// order.
+/// `target` with every pixel outside `mask` (per camera pixel, row-major, true = object)
+/// made non-finite: compensation does not work on those points ([`work_points`]), so
+/// projector pixels that would light only them stay dark. They stay in the light
+/// certificate, and the bound holds there as everywhere.
+pub fn mask_target(target: &LinearImage, mask: &[bool]) -> Result<LinearImage, CompensateError> {
+    if mask.len() != target.data.len() {
+        return Err(CompensateError::MaskSize { got: mask.len(), want: target.data.len() });
+    }
+    let mut out = target.clone();
+    for (v, &inside) in out.data.iter_mut().zip(mask) {
+        if !inside {
+            *v = [f32::NAN; 3];
+        }
+    }
+    Ok(out)
+}
+
+/// The object points compensation works on (covered, calibrated, finite target: outside an
+/// object mask the target is not finite, [`mask_target`]), in raster order.
 pub fn work_points(stage: &StageModel, geom: &Geometry, target: &LinearImage) -> Vec<u32> {
     (0..geom.points as u32)
         .into_par_iter()

@@ -4,6 +4,7 @@
 
 use restage_authoring::classify::{PickColour, Picks, picks::PICKS_VERSION};
 use restage_authoring::relight::{Light, Lighting};
+use restage_authoring::segment::Outline;
 use serde::{Deserialize, Serialize};
 
 /// No hint at this pixel (the same value the label maps use for "not object").
@@ -349,6 +350,9 @@ pub struct Small {
     pub settings: Settings,
     pub picks: Picks,
     pub lighting: Lighting,
+    /// The conservator's object outline (empty: the mask step's automatic proposal, or the
+    /// project's own mask).
+    pub outline: Outline,
 }
 
 /// Hint strokes: one class per pixel or [`NO_HINT`], the label map's size.
@@ -556,6 +560,11 @@ pub fn stale_steps(a: &Small, b: &Small) -> Steps {
     if a.picks != b.picks || sa.classify != sb.classify {
         s.insert(Step::Classify);
     }
+    // The object mask (made before classifying) limits classification and compensation.
+    if a.outline != b.outline {
+        s.insert(Step::Classify);
+        s.insert(Step::CompOriginal);
+    }
     if sa.restore != sb.restore {
         s.insert(Step::Restore);
     }
@@ -643,7 +652,12 @@ mod tests {
     fn small() -> Small {
         let mut picks = empty_picks();
         picks.colours.push(new_class(&picks));
-        Small { settings: Settings::default(), picks, lighting: Lighting::default() }
+        Small {
+            settings: Settings::default(),
+            picks,
+            lighting: Lighting::default(),
+            outline: Outline::default(),
+        }
     }
 
     #[test]
@@ -675,6 +689,9 @@ mod tests {
         let picks = d.edit(|s| s.picks.colours[0].pixels.push([1, 2]));
         assert!(picks.contains(Step::Classify) && picks.contains(Step::CompRelit));
         assert!(!picks.contains(Step::CompOriginal));
+        // The outline makes the mask, which classification and every compensation read.
+        let outline = d.edit(|s| s.outline.polygons.push(vec![[0.0, 0.0], [4.0, 0.0], [2.0, 3.0]]));
+        assert_eq!(outline, Steps::from_iter(Step::ALL));
         // No change, nothing stale, nothing recorded.
         assert_eq!(d.edit(|s| s.settings.restore.alpha = 4.0), Steps::NONE);
         let mut undone = 0;
@@ -682,7 +699,7 @@ mod tests {
             d.undo();
             undone += 1;
         }
-        assert_eq!(undone, 4);
+        assert_eq!(undone, 5);
         assert_eq!(d.small, small());
     }
 

@@ -378,6 +378,15 @@ impl Runner {
                         px.0 = [c[0], c[1], c[2], 255];
                     }
                     send(Msg::Image { view: ViewKind::ClassesFalse, image: Arc::new(img) });
+                    if let Some(mask_path) = p.shown_mask().filter(|m| m.is_file()) {
+                        let photo = LinearImage::load(&p.path(&p.paths.photo))?;
+                        let mask =
+                            restage_authoring::segment::load_mask(&mask_path, photo.width, photo.height)?;
+                        send(Msg::Image {
+                            view: ViewKind::Object,
+                            image: Arc::new(tinted(photo.to_srgb8(1.0), &mask)),
+                        });
+                    }
                 }
                 Step::Restore => {
                     let path = p.path(RESTORE_DIR).join(restore::io::RESTORED_FILE);
@@ -421,6 +430,19 @@ impl Runner {
 
 fn load_rgba(path: &Path) -> Result<RgbaImage> {
     Ok(image::open(path).with_context(|| format!("cannot read {}", path.display()))?.to_rgba8())
+}
+
+/// The photo with what is outside the object mask tinted blue and dimmed.
+fn tinted(photo: image::RgbImage, mask: &[bool]) -> RgbaImage {
+    let mut img = rgba(photo);
+    for (px, &inside) in img.pixels_mut().zip(mask) {
+        if !inside {
+            let tint = [40.0, 90.0, 200.0];
+            px.0 = [0, 1, 2, 3]
+                .map(|c| if c == 3 { 255 } else { (0.35 * px.0[c] as f32 + 0.65 * tint[c]) as u8 });
+        }
+    }
+    img
 }
 
 fn rgba(img: image::RgbImage) -> RgbaImage {

@@ -9,6 +9,7 @@
 //! | `project.toml` | [`ProjectFile`]: where the photo, capture set and stage model are, every parameter |
 //! | `capture/` | the capture set (optional: a photo-only project classifies and restores) |
 //! | `stage/` | the stage model compensation uses |
+//! | `mask/outline.json`, `mask/{object_mask.png,mask.json}` | the object outline, the mask step's mask |
 //! | `classify/picks.json`, `classify/{labels,palette,preview}` | picks, classification |
 //! | `restore/hints.png`, `restore/{labels,restored,before_after}.png` | hint strokes, restoration |
 //! | `relight/lighting.toml`, `relight/relit.png` | the virtual lighting, the relit variant |
@@ -21,6 +22,7 @@ use anyhow::{Context, Result, bail};
 use restage_authoring::classify::{Palette, Picks, output_paths};
 use restage_authoring::relight::Lighting;
 use restage_authoring::restore::io::{RESTORED_FILE, display_colours, load_hints};
+use restage_authoring::segment::Outline;
 use restage_authoring::stage_sim::{GROUND_TRUTH_DIR, TRUTH_FILE};
 use serde::{Deserialize, Serialize};
 
@@ -34,6 +36,9 @@ pub const PICKS_FILE: &str = "classify/picks.json";
 pub const RESTORE_DIR: &str = "restore";
 pub const HINTS_FILE: &str = "restore/hints.png";
 pub const LIGHTING_FILE: &str = "relight/lighting.toml";
+pub const MASK_DIR: &str = "mask";
+pub const OUTLINE_FILE: &str = "mask/outline.json";
+pub const OBJECT_MASK_FILE: &str = "mask/object_mask.png";
 pub const RELIT_FILE: &str = "relight/relit.png";
 
 /// Where a project's inputs are.
@@ -49,7 +54,9 @@ pub struct Paths {
     /// Where that stage model came from, for people.
     #[serde(default)]
     pub stage_note: String,
-    /// Object mask for classification (non-zero = object).
+    /// Object mask (non-zero = object) for classification, restoration and compensation,
+    /// when the project brings its own; without one, a project with a stage model makes it
+    /// with the mask step (`mask/object_mask.png`), as does any project with an outline.
     pub mask: Option<PathBuf>,
 }
 
@@ -181,7 +188,24 @@ impl Project {
         } else {
             HintLayer::empty(w, h)
         };
-        Ok(Opened { project, small: Small { settings: file.settings, picks, lighting }, hints, problems })
+        let outline_path = project.path(OUTLINE_FILE);
+        let outline = if outline_path.is_file() {
+            match Outline::load(&outline_path) {
+                Ok(o) => o,
+                Err(e) => {
+                    note(&mut project, outline_path, format!("{e:#}; starting with no outline"));
+                    Outline::default()
+                }
+            }
+        } else {
+            Outline::default()
+        };
+        Ok(Opened {
+            project,
+            small: Small { settings: file.settings, picks, lighting, outline },
+            hints,
+            problems,
+        })
     }
 
     fn load_hint_layer(&self, picks: &Picks) -> Result<HintLayer> {
@@ -230,6 +254,16 @@ impl Project {
         std::fs::create_dir_all(lighting.parent().expect("inside the project"))?;
         write_if_changed(&lighting, toml::to_string(&small.lighting)?.as_bytes())?;
         self.write_hints(small, hints)?;
+        let outline = self.path(OUTLINE_FILE);
+        if small.outline.polygons.is_empty() {
+            if outline.exists() {
+                std::fs::remove_file(&outline).with_context(|| format!("removing {}", outline.display()))?;
+            }
+        } else {
+            std::fs::create_dir_all(self.path(MASK_DIR))?;
+            let text = serde_json::to_string_pretty(&small.outline).context("writing the outline")?;
+            write_if_changed(&outline, (text + "\n").as_bytes())?;
+        }
         let script = self.steps_script(small, hints);
         write_if_changed(&self.path(STEPS_SCRIPT), script.as_bytes())?;
         Ok(())
@@ -256,6 +290,39 @@ impl Project {
         } else {
             Ok(())
         }
+    }
+
+    /// Whether the mask step makes the project's object mask: with an outline, or with a
+    /// stage model and no mask of the project's own.
+    pub fn runs_mask_step(&self, small: &Small) -> bool {
+        !small.outline.polygons.is_empty()
+            || (self.paths.stage.is_some()
+                && self.paths.mask.as_ref().is_none_or(|m| m == Path::new(OBJECT_MASK_FILE)))
+    }
+
+    /// The object mask the steps read, if any (relative to the project).
+    pub fn mask_file(&self, small: &Small) -> Option<PathBuf> {
+        if self.runs_mask_step(small) { Some(OBJECT_MASK_FILE.into()) } else { self.paths.mask.clone() }
+    }
+
+    /// The mask the window shows: the mask step's when it made one, else the project's own.
+    pub fn shown_mask(&self) -> Option<PathBuf> {
+        let made = self.path(OBJECT_MASK_FILE);
+        if made.is_file() { Some(made) } else { self.paths.mask.as_ref().map(|m| self.path(m)) }
+    }
+
+    /// The mask step's command line (before `--force`).
+    fn mask_line(&self, small: &Small, p: &dyn Fn(&Path) -> String) -> Vec<String> {
+        let mut a = vec!["mask".to_string()];
+        match &self.paths.stage {
+            Some(s) => a.extend(["--stage".into(), p(s)]),
+            None => a.extend(["--photo".into(), p(&self.paths.photo)]),
+        }
+        if !small.outline.polygons.is_empty() {
+            a.extend(["--outline".into(), p(Path::new(OUTLINE_FILE))]);
+        }
+        a.extend(["--out".into(), p(Path::new(MASK_DIR))]);
+        a
     }
 
     /// Whether the project can make a step at all (what it lacks, if not).
@@ -362,10 +429,11 @@ impl Project {
                     "--prior-picks".into(),
                     n(s.classify.prior_picks),
                 ];
-                if let Some(m) = &self.paths.mask {
+                let mask = self.mask_file(small);
+                if let Some(m) = &mask {
                     a.extend(["--mask".into(), p(m)]);
                 }
-                vec![a]
+                if self.runs_mask_step(small) { vec![self.mask_line(small, &p), a] } else { vec![a] }
             }
             Step::Restore => {
                 let r = &s.restore;
@@ -401,6 +469,9 @@ impl Project {
                 }
                 if !hints.is_empty() {
                     a.extend(["--hints".into(), p(Path::new(HINTS_FILE))]);
+                }
+                if let Some(m) = self.mask_file(small) {
+                    a.extend(["--mask".into(), p(&m)]);
                 }
                 vec![a]
             }
@@ -453,6 +524,17 @@ impl Project {
                     "--out".into(),
                     comp.clone(),
                 ]];
+                if let Some(m) = self.mask_file(small) {
+                    lines[0].extend(["--mask".into(), p(&m)]);
+                    // Compensating the photo needs no classification: make the mask here
+                    // when classifying cannot.
+                    if scene == Scene::Original
+                        && self.runs_mask_step(small)
+                        && self.can_run(Step::Classify, small).is_err()
+                    {
+                        lines.insert(0, self.mask_line(small, &p));
+                    }
+                }
                 if let (true, Some(capture)) = (self.has_virtual_stage(), &self.paths.capture) {
                     let (srgb, linear) = self.preview_file(scene);
                     lines.push(vec![

@@ -8,6 +8,8 @@ use super::doc::Scene;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ViewKind {
     Photo,
+    /// The photo with what is not the object tinted (the object mask).
+    Object,
     /// The classification in the palette's display colours.
     Classes,
     /// The classification in distinct false colours.
@@ -24,6 +26,7 @@ impl ViewKind {
     pub fn label(self) -> String {
         match self {
             ViewKind::Photo => "photo".into(),
+            ViewKind::Object => "object".into(),
             ViewKind::Classes => "classes".into(),
             ViewKind::ClassesFalse => "classes (false colour)".into(),
             ViewKind::Restored => "restored".into(),

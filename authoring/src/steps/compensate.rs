@@ -39,6 +39,10 @@ pub struct Args {
     /// gpu: any adapter, lavapipe included). The light guarantee always runs on the CPU.
     #[arg(long, value_enum, default_value_t = Device::Auto)]
     pub device: Device,
+    /// Object mask (the mask step's `object_mask.png`, camera size, non-zero = object):
+    /// points outside are not lit (projector pixels that reach only them stay dark).
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
     /// Output folder for the frames, the certificate and the report.
     #[arg(long)]
     pub out: PathBuf,
@@ -129,7 +133,12 @@ pub fn params(args: &Args) -> Result<Params> {
 pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<CompensateSummary> {
     let params = params(args)?;
     let restored = restored_path(&args.restored);
-    let target = LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
+    let mut target =
+        LinearImage::load(&restored).with_context(|| "loading the restored image".to_string())?;
+    if let Some(m) = &args.mask {
+        let inside = restage_authoring::segment::load_mask(m, stage.camera.width, stage.camera.height)?;
+        target = compensate::mask_target(&target, &inside)?;
+    }
     let comp = compensate::compensate_on(stage, prep, &target, &params, args.device)
         .with_context(|| format!("compensating {}", restored.display()))?;
     compensate::io::save(&args.out, &comp, &params, prep)?;

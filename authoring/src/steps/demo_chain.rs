@@ -117,12 +117,15 @@ pub fn run_chain(
     std::fs::create_dir_all(&classify_dir)?;
     let picks_path = classify_dir.join("picks.json");
     picks.save(&picks_path)?;
+    // The object mask: the mask step's automatic proposal on the CALIBRATED model, used when
+    // it agrees with the virtual stage's ground-truth object mask on at least 99 % of the
+    // pixels (the summary gives the figure); otherwise the ground truth, and the summary says so.
     let mask_path = classify_dir.join("object_mask.png");
-    image::GrayImage::from_fn(cam.width, cam.height, |x, y| {
-        let i = (y * cam.width + x) as usize;
-        image::Luma([if model.points[i][2].is_finite() { 255 } else { 0 }])
-    })
-    .save(&mask_path)?;
+    let truth_mask: Vec<bool> = stage.pixels().iter().map(|p| p.is_object()).collect();
+    let (object_mask, mask_line) = demo_mask(&calibrated, &truth_mask, &out.join("mask"))?;
+    restage_authoring::segment::save_mask(&mask_path, cam.width, cam.height, &object_mask)?;
+    tracing::info!("step 3 mask: {mask_line}");
+    log(format!("3 mask        {mask_line}"));
     let photo_path = capture_dir.join(&manifest.photo);
     let cls = super::classify::classify_files(
         &photo_path,
@@ -159,6 +162,7 @@ pub fn run_chain(
         hints: None,
         picks: Some(picks_path.clone()),
         grid: "auto".into(),
+        mask: Some(mask_path.clone()),
         overwrite: super::Overwrite { force: true },
     };
     let rs = super::restore::restore_files(&rargs, progress)?;
@@ -190,7 +194,9 @@ pub fn run_chain(
     ];
     let mut views = Vec::new();
     for (id, _, _, target) in &scenes {
-        let comp = compensate::compensate_on(&model, &prep, target, &params, device)?;
+        // Only the object is lit (the mask's outside: no work points, dark projector pixels).
+        let target = compensate::mask_target(target, &object_mask)?;
+        let comp = compensate::compensate_on(&model, &prep, &target, &params, device)?;
         let dir = comp_dir.join(id);
         compensate::io::save(&dir, &comp, &params, &prep)?;
         if *id == "restored" {
@@ -205,7 +211,7 @@ pub fn run_chain(
         }
         // Step 9 (per scene): what a visitor sees, rendered with the TRUE physics.
         let view = TruePhysics::view(&stage, &comp.frames);
-        let (de_mean, de_p95, n) = colour_error(&comp, &view, target);
+        let (de_mean, de_p95, n) = colour_error(&comp, &view, &target);
         let tp = true_peak(&stage, &comp.frames);
         let s = &comp.stats;
         tracing::info!(
@@ -345,6 +351,45 @@ pub fn run_chain(
     std::fs::write(&summary_path, &summary)?;
     Ok(ChainSummary { bundle, verified, summary })
 }
+
+/// The demo's object mask and a line on where it came from: the proposal on the calibrated
+/// model (also written to `mask_dir` as the mask step writes it) when it agrees with the
+/// ground truth `truth` on at least [`MASK_AGREEMENT`] of the pixels, else `truth`.
+pub fn demo_mask(calibrated: &StageModel, truth: &[bool], mask_dir: &Path) -> Result<(Vec<bool>, String)> {
+    use restage_authoring::segment::{SegmentParams, propose};
+    let proposal = propose(calibrated, &SegmentParams::default());
+    let seg = match proposal {
+        Ok(seg) if seg.mask.len() == truth.len() => seg,
+        Ok(_) => return Ok((truth.to_vec(), "ground truth (the calibrated model's camera differs)".into())),
+        Err(e) => return Ok((truth.to_vec(), format!("ground truth (no proposal: {e})"))),
+    };
+    let agree = seg.mask.iter().zip(truth).filter(|(a, b)| a == b).count() as f64 / truth.len() as f64;
+    let object = truth.iter().filter(|&&t| t).count().max(1);
+    let kept = seg.mask.iter().zip(truth).filter(|(m, t)| **m && **t).count() as f64 / object as f64;
+    if agree >= MASK_AGREEMENT {
+        super::mask::write(mask_dir, &seg)?;
+        Ok((
+            seg.mask,
+            format!(
+                "proposed from the calibrated model: {:.2} % of pixels agree with the ground truth, \
+                 {:.2} % of the object kept",
+                100.0 * agree,
+                100.0 * kept
+            ),
+        ))
+    } else {
+        Ok((
+            truth.to_vec(),
+            format!(
+                "ground truth: the calibrated model's proposal agrees on only {:.2} % of pixels",
+                100.0 * agree
+            ),
+        ))
+    }
+}
+
+/// Agreement with the ground truth the demo asks of the mask proposal before it uses it.
+pub const MASK_AGREEMENT: f64 = 0.99;
 
 /// The demo's stand-in for a conservator's clicks: 12 seeded pixels per paint colour present
 /// on the object, drawn from the virtual stage's deteriorated labels (with their true display

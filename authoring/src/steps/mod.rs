@@ -16,6 +16,7 @@ pub mod decode;
 pub mod demo;
 pub mod demo_chain;
 pub mod keygen;
+pub mod mask;
 pub mod relight;
 pub mod render;
 pub mod report;
@@ -98,6 +99,9 @@ pub fn now_unix_s() -> Result<i64> {
 pub enum StepCommand {
     /// Render what the camera sees when the projectors show given frames (true physics).
     Render(render::Args),
+    /// The object mask: proposed from the stage model's geometry (supports such as a plinth
+    /// or a wall removed), or the conservator's outline.
+    Mask(mask::MaskArgs),
     /// Classify a photo's pixels into the picked paint colours (paper §4.1).
     Classify(classify::ClassifyArgs),
     /// Restore a classified label map by contour energy minimisation (paper §4.2-4.4).
@@ -112,6 +116,7 @@ pub enum StepCommand {
 #[derive(Debug)]
 pub enum StepSummary {
     Render(render::RenderSummary),
+    Mask(mask::MaskStepSummary),
     Classify(classify::ClassifySummary),
     Restore(restore::RestoreSummary),
     Compensate(compensate::CompensateSummary),
@@ -122,6 +127,7 @@ impl std::fmt::Display for StepSummary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             StepSummary::Render(s) => s.fmt(f),
+            StepSummary::Mask(s) => s.fmt(f),
             StepSummary::Classify(s) => s.fmt(f),
             StepSummary::Restore(s) => s.fmt(f),
             StepSummary::Compensate(s) => s.fmt(f),
@@ -135,6 +141,7 @@ impl StepCommand {
     pub fn run(&self, progress: &dyn Progress) -> Result<StepSummary> {
         Ok(match self {
             StepCommand::Render(a) => StepSummary::Render(render::run(a, progress)?),
+            StepCommand::Mask(a) => StepSummary::Mask(mask::run(a, progress)?),
             StepCommand::Classify(a) => StepSummary::Classify(classify::run(a, progress)?),
             StepCommand::Restore(a) => StepSummary::Restore(restore::run(a, progress)?),
             StepCommand::Compensate(a) => StepSummary::Compensate(compensate::run(a, progress)?),

@@ -14,7 +14,7 @@ use restage_authoring::restore::io::{
     load_mask, save_rgb,
 };
 use restage_authoring::restore::{
-    self, ClassInfo, HintMap, LabelMap, Region, RestoreParams, RestoreStats, Shape,
+    self, ClassInfo, HintMap, LabelMap, MASKED, Region, RestoreParams, RestoreStats, Shape,
 };
 
 #[derive(Args, Debug, Clone)]
@@ -67,6 +67,10 @@ pub struct RestoreArgs {
     /// Grid of cells `GxH` (§4.3), or `auto` for cells of about 256 px.
     #[arg(long, default_value = "auto")]
     pub grid: String,
+    /// Object mask (the mask step's `object_mask.png`; non-zero = object): pixels outside are
+    /// not restored (black in the outputs) and never lend their colour to a fill.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
 }
 
 /// What one restoration run did.
@@ -74,6 +78,8 @@ pub struct RestoreArgs {
 pub struct RestoreSummary {
     pub stats: RestoreStats,
     pub changed_pixels: usize,
+    /// Classified pixels the mask took out (not restored, black in the outputs).
+    pub masked_pixels: usize,
     pub compute: Duration,
 }
 
@@ -83,7 +89,7 @@ impl std::fmt::Display for RestoreSummary {
         write!(
             f,
             "restored {} contours ({} points, {} anchors) in {} cells: {} moves, {} points dropped, \
-             {} holes filled, {} specks removed, {} pixels kept by gamma{}; {} pixels changed; {:.3} s",
+             {} holes filled, {} specks removed, {} pixels kept by gamma{}; {} pixels changed{}; {:.3} s",
             s.contours,
             s.points,
             s.anchors,
@@ -99,6 +105,11 @@ impl std::fmt::Display for RestoreSummary {
                 String::new()
             },
             self.changed_pixels,
+            if self.masked_pixels > 0 {
+                format!("; {} pixels outside the object mask left out", self.masked_pixels)
+            } else {
+                String::new()
+            },
             self.compute.as_secs_f64()
         )
     }
@@ -171,12 +182,27 @@ pub struct RestoreInputs {
     pub regions: Vec<Region>,
     pub hints: Option<HintMap>,
     pub params: RestoreParams,
+    /// Classified pixels the object mask took out (already [`MASKED`] in `labels`).
+    pub masked_pixels: usize,
 }
 
 /// Reads and checks everything `args` names.
 pub fn load_inputs(args: &RestoreArgs) -> Result<RestoreInputs> {
-    let (labels, palette) = load_classified(&args.classify_dir)
+    let (mut labels, palette) = load_classified(&args.classify_dir)
         .with_context(|| format!("reading classification {}", args.classify_dir.display()))?;
+    // Outside the object mask nothing is paint: masked before anything reads the labels, so
+    // those pixels are neither restored nor a source of fill.
+    let mut masked_pixels = 0;
+    if let Some(p) = &args.mask {
+        let inside = restage_authoring::segment::load_mask(p, labels.width, labels.height)
+            .with_context(|| format!("reading the object mask for {}", args.classify_dir.display()))?;
+        for (l, &m) in labels.data.iter_mut().zip(&inside) {
+            if !m && *l != MASKED {
+                *l = MASKED;
+                masked_pixels += 1;
+            }
+        }
+    }
     let picks = match &args.picks {
         Some(p) => Some(Picks::load(p).with_context(|| format!("reading picks {}", p.display()))?),
         None => None,
@@ -204,18 +230,26 @@ pub fn load_inputs(args: &RestoreArgs) -> Result<RestoreInputs> {
         grid: parse_grid(&args.grid, w, h)?,
         ..RestoreParams::default()
     };
-    Ok(RestoreInputs { labels, info: class_info(&palette), colours, regions, hints, params })
+    Ok(RestoreInputs { labels, info: class_info(&palette), colours, regions, hints, params, masked_pixels })
 }
 
 /// Reads the classification, restores it and writes the three outputs into `args.out`.
 pub fn restore_files(args: &RestoreArgs, progress: &dyn Progress) -> Result<RestoreSummary> {
     progress.stage("reading the classification");
-    let RestoreInputs { labels, info, colours, regions, hints, params } = load_inputs(args)?;
+    let RestoreInputs { labels, info, colours, regions, hints, params, masked_pixels } = load_inputs(args)?;
     let (w, h) = (labels.width, labels.height);
     progress.stage(&format!("restoring {w}x{h} in {}x{} cells", params.grid.0, params.grid.1));
     let t0 = Instant::now();
-    let restored = restore::restore(&labels, &info, &regions, hints.as_ref(), &params)
+    let mut restored = restore::restore(&labels, &info, &regions, hints.as_ref(), &params)
         .with_context(|| format!("restoring {}", args.classify_dir.display()))?;
+    if masked_pixels > 0 {
+        // Restoration never grows paint over masked pixels; held here whatever it does.
+        for (r, &l) in restored.labels.data.iter_mut().zip(&labels.data) {
+            if l == MASKED {
+                *r = MASKED;
+            }
+        }
+    }
     let compute = t0.elapsed();
     progress.stage("writing outputs");
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
@@ -223,7 +257,7 @@ pub fn restore_files(args: &RestoreArgs, progress: &dyn Progress) -> Result<Rest
     save_rgb(&args.out.join(RESTORED_FILE), &restore::render_labels(&restored.labels, &colours))?;
     save_rgb(&args.out.join(BEFORE_AFTER_FILE), &restore::before_after(&labels, &restored.labels, &colours))?;
     let changed_pixels = labels.data.iter().zip(&restored.labels.data).filter(|(a, b)| a != b).count();
-    Ok(RestoreSummary { stats: restored.stats, changed_pixels, compute })
+    Ok(RestoreSummary { stats: restored.stats, changed_pixels, masked_pixels, compute })
 }
 
 #[cfg(test)]

@@ -257,8 +257,19 @@ impl App {
                 }
             }
         }
+        // The outline with its tool or over the object view.
+        if self.tools.tool == Tool::Outline || self.view.shown == Shown::One(ViewKind::Object) {
+            let cyan = Stroke::new(2.0, Color32::from_rgb(60, 220, 255));
+            for poly in &self.working.outline.polygons {
+                p.add(egui::Shape::closed_line(poly.iter().map(|q| at(*q)).collect(), cyan));
+            }
+        }
         if !self.tools.polygon.is_empty() {
             let pts: Vec<Pos2> = self.tools.polygon.iter().map(|q| at(*q)).collect();
+            if self.tools.tool == Tool::Outline {
+                // The first corner, where a click closes the outline.
+                p.circle_stroke(pts[0], 6.0, Stroke::new(1.5, Color32::WHITE));
+            }
             p.add(egui::Shape::line(pts, Stroke::new(2.0, Color32::from_rgb(255, 160, 40))));
         }
     }

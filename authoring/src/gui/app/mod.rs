@@ -254,6 +254,9 @@ impl App {
         if ctx.input(|i| i.key_pressed(egui::Key::Enter)) {
             self.close_polygon();
         }
+        if ctx.input(|i| i.key_pressed(egui::Key::Backspace)) {
+            self.tools.polygon.pop();
+        }
     }
 }
 

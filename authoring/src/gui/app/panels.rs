@@ -38,6 +38,7 @@ impl App {
             ui.separator();
             let views = [
                 ViewKind::Photo,
+                ViewKind::Object,
                 ViewKind::Classes,
                 ViewKind::ClassesFalse,
                 ViewKind::Restored,
@@ -105,18 +106,27 @@ impl App {
     pub(super) fn side_panel(&mut self, ui: &mut egui::Ui) {
         self.first_step_ui(ui);
         ui.heading("Tools");
+        let before = self.tools.tool;
         ui.horizontal_wrapped(|ui| {
             for (t, name, tip) in [
                 (Tool::Pan, "pan", "drag to pan, wheel to zoom (any tool: middle drag pans)"),
                 (Tool::Pick, "pick", "click: pick a pixel for the class; shift-drag: a rectangle; right-click: remove the nearest pick"),
                 (Tool::RegionRect, "rect region", "drag a rectangle to restore"),
                 (Tool::RegionPolygon, "polygon region", "click corners; double-click or Enter closes, Esc cancels"),
+                (Tool::Outline, "outline", "the object's outline: click corners; the first corner, double-click or Enter closes, Backspace removes the last corner, Esc cancels"),
                 (Tool::Hint, "hint brush", "paint the class where the restoration should put it"),
                 (Tool::Erase, "eraser", "erase hint strokes"),
             ] {
                 ui.selectable_value(&mut self.tools.tool, t, name).on_hover_text(tip);
             }
         });
+        if self.tools.tool != before {
+            // A polygon begun with one tool is not finished by another.
+            self.tools.polygon.clear();
+            if self.tools.tool == Tool::Outline && self.textures.views.contains_key(&ViewKind::Object) {
+                self.view.shown = Shown::One(ViewKind::Object);
+            }
+        }
         if matches!(self.tools.tool, Tool::Hint | Tool::Erase) {
             ui.add(
                 egui::Slider::new(&mut self.tools.brush, 0.5..=64.0)
@@ -133,6 +143,9 @@ impl App {
                     self.finish_stroke(diff);
                 }
             });
+        }
+        if self.tools.tool == Tool::Outline {
+            self.outline_ui(ui);
         }
         ui.separator();
         self.classes_ui(ui);
@@ -263,6 +276,27 @@ impl App {
                      counts less.",
                 );
         });
+    }
+
+    /// The outline tool's state: what the mask is made from, and clearing the outline.
+    fn outline_ui(&mut self, ui: &mut egui::Ui) {
+        let n = self.working.outline.polygons.len();
+        if n == 0 {
+            ui.weak(if self.project.paths.stage.is_some() {
+                "object: the automatic proposal (tinted outside in the object view); draw to replace it"
+            } else {
+                "no outline: draw around the object"
+            });
+        } else {
+            ui.label(format!("outline: {n} polygon{}", if n == 1 { "" } else { "s" }));
+        }
+        if ui
+            .add_enabled(n > 0 || !self.tools.polygon.is_empty(), egui::Button::new("clear outline"))
+            .clicked()
+        {
+            self.working.outline.polygons.clear();
+            self.tools.polygon.clear();
+        }
     }
 
     fn regions_ui(&mut self, ui: &mut egui::Ui) {
@@ -538,8 +572,12 @@ mod tests {
 
     #[test]
     fn the_first_step_follows_what_the_project_lacks() {
-        let mut small =
-            Small { settings: Settings::default(), picks: empty_picks(), lighting: Lighting::default() };
+        let mut small = Small {
+            settings: Settings::default(),
+            picks: empty_picks(),
+            lighting: Lighting::default(),
+            outline: Default::default(),
+        };
         let all = Steps::from_iter(Step::ALL);
         assert!(first_step(&small, all).unwrap().contains("add class"));
         let c = new_class(&small.picks);

@@ -1,5 +1,5 @@
 //! What the pointer does on the picture with each tool: colour picks, region rectangles and
-//! polygons, hint strokes (painted into the document and the overlay as the pointer moves,
+//! polygons, the object outline's polygons, hint strokes (painted into the document and the overlay as the pointer moves,
 //! one undo step and one recomputation when it lifts).
 
 use eframe::egui::{self, Color32, Pos2, Rect, Stroke};
@@ -15,6 +15,8 @@ pub(super) enum Tool {
     Pick,
     RegionRect,
     RegionPolygon,
+    /// Polygons around the object: the mask step's outline.
+    Outline,
     Hint,
     Erase,
 }
@@ -29,7 +31,7 @@ pub(super) struct ToolState {
     pub(super) stroke: Option<(HintDiff, [f64; 2])>,
     /// Where a rectangle drag began, photo pixels.
     pub(super) drag_from: Option<[f32; 2]>,
-    /// The corners of the polygon being drawn, photo pixels.
+    /// The corners of the polygon being drawn (a region or the outline), photo pixels.
     pub(super) polygon: Vec<[f64; 2]>,
 }
 
@@ -116,16 +118,28 @@ impl App {
                     background: None,
                 });
             }),
-            Tool::RegionPolygon => {
+            Tool::RegionPolygon | Tool::Outline => {
                 if resp.double_clicked() {
                     self.close_polygon();
                 } else if resp.clicked()
                     && let Some(p) = resp.interact_pointer_pos()
                 {
                     let q = to_img(p);
-                    self.tools
-                        .polygon
-                        .push([q[0].clamp(0.0, w as f64 - 1.0), q[1].clamp(0.0, h as f64 - 1.0)]);
+                    // A click on the first corner closes the outline (within 8 points).
+                    let first = self.tools.polygon.first().map(|f| {
+                        let s = t.to_screen([f[0] as f32, f[1] as f32]);
+                        (s[0] + area.min.x - p.x).hypot(s[1] + area.min.y - p.y)
+                    });
+                    if self.tools.tool == Tool::Outline
+                        && self.tools.polygon.len() >= 3
+                        && first.is_some_and(|d| d <= 8.0)
+                    {
+                        self.close_polygon();
+                    } else {
+                        self.tools
+                            .polygon
+                            .push([q[0].clamp(0.0, w as f64 - 1.0), q[1].clamp(0.0, h as f64 - 1.0)]);
+                    }
                 }
             }
             Tool::Hint | Tool::Erase => {
@@ -203,11 +217,16 @@ impl App {
         }
     }
 
-    /// Makes the polygon being drawn a region (three corners or more), else drops it.
+    /// Makes the polygon being drawn a region or a polygon of the outline (three corners or
+    /// more), else drops it.
     pub(super) fn close_polygon(&mut self) {
         if self.tools.polygon.len() >= 3 {
             let points = std::mem::take(&mut self.tools.polygon);
-            self.working.settings.restore.regions.push(RegionSpec::Polygon { points, background: None });
+            if self.tools.tool == Tool::Outline {
+                self.working.outline.polygons.push(points);
+            } else {
+                self.working.settings.restore.regions.push(RegionSpec::Polygon { points, background: None });
+            }
         } else {
             self.tools.polygon.clear();
         }
