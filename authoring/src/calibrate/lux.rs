@@ -12,7 +12,9 @@
 //! 1 = 395
 //! ```
 //! Without `reference_pixel` the reference is the surface point the projector lights nearest
-//! the camera's principal point. Without `ambient`, the whole reading is taken as the
+//! the camera's principal point. A `reference_pixel` that decoded no surface point (dark paint
+//! decodes patchily) falls back to the nearest well-decoded pixel the projector lights, within
+//! [`FALLBACK_RADIUS`] of the image diagonal; the fit records both pixels and warns. Without `ambient`, the whole reading is taken as the
 //! projector's full white including its black level, which errs towards more lux (safe).
 
 use std::collections::BTreeMap;
@@ -117,12 +119,26 @@ impl LuxReadings {
     }
 }
 
+/// How far from the requested reference pixel a substitute may lie, as a share of the camera
+/// image's diagonal: a few centimetres on a typical object, where the meter's reading still
+/// holds (the projector's light varies slowly across the surface).
+pub const FALLBACK_RADIUS: f64 = 0.03;
+/// Of a substitute reference pixel's 3x3 neighbours (inside the image), at least this share must
+/// also be surface points the projector lights, so an isolated lucky decode is not chosen.
+pub const FALLBACK_NEIGHBOURS: f64 = 0.75;
+
 /// What one projector's lux calibration used, for the report.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LuxFit {
     pub projector: usize,
     pub reading: f64,
+    /// The camera pixel the conservator named (None: chosen near the principal point).
+    pub requested_pixel: Option<[u32; 2]>,
+    /// The camera pixel the fit used: the requested one, or the nearest well-decoded pixel the
+    /// projector lights when the requested one decoded no surface point.
     pub reference_pixel: [u32; 2],
+    /// Distance from the requested to the used pixel, camera pixels (0 when used as given).
+    pub moved_px: f64,
     pub distance_mm: f64,
     pub cos_theta: f64,
     pub vignetting: f64,
@@ -147,6 +163,17 @@ pub fn apply_lux(model: &mut StageModel, readings: &LuxReadings) -> Result<Vec<L
             return Err(LuxError::Value { projector: k, lux, ambient });
         }
         let fit = fit_one(model, k, lux - ambient, readings)?;
+        if let Some(req) = fit.requested_pixel.filter(|&r| r != fit.reference_pixel) {
+            tracing::warn!(
+                "projector {k}: lux reference pixel ({}, {}) is not a reconstructed surface point \
+                 this projector lights; using the nearest well-decoded one, ({}, {}), {:.1} px away",
+                req[0],
+                req[1],
+                fit.reference_pixel[0],
+                fit.reference_pixel[1],
+                fit.moved_px
+            );
+        }
         // Without an ambient reading, the reading also holds this projector's black level.
         let black = if readings.ambient.is_some() {
             0.0
@@ -186,7 +213,24 @@ fn fit_one(model: &StageModel, k: usize, lux: f64, readings: &LuxReadings) -> Re
                     problem: format!("is outside the {w}x{h} camera image"),
                 });
             }
-            px
+            let i = px[1] as usize * w as usize + px[0] as usize;
+            if geometry(i).is_some() {
+                px
+            } else {
+                let radius = FALLBACK_RADIUS * f64::from(w).hypot(f64::from(h));
+                nearest_well_decoded(w, h, px, radius, &|i| geometry(i).is_some()).ok_or_else(|| {
+                    LuxError::Reference {
+                        projector: k,
+                        pixel: Some(px),
+                        problem: format!(
+                            "is not on a reconstructed surface point this projector lights, nor is \
+                             any well-decoded pixel within {radius:.0} px ({:.0} % of the image \
+                             diagonal); name a pixel on the lit, decoded surface",
+                            100.0 * FALLBACK_RADIUS
+                        ),
+                    }
+                })?
+            }
         }
         None => {
             let (cx, cy) = (model.camera.cx, model.camera.cy);
@@ -217,15 +261,63 @@ fn fit_one(model: &StageModel, k: usize, lux: f64, readings: &LuxReadings) -> Re
     };
     let vignetting = vignetting_at(p.width, p.height, &p.vignetting, corr[i]);
     let lux_at_1m = lux * (d / 1000.0).powi(2) / (vignetting * cos_theta);
+    let moved_px = readings.reference_pixel.map_or(0.0, |r| {
+        (f64::from(r[0]) - f64::from(pixel[0])).hypot(f64::from(r[1]) - f64::from(pixel[1]))
+    });
     Ok(LuxFit {
         projector: k,
         reading: lux,
+        requested_pixel: readings.reference_pixel,
         reference_pixel: pixel,
+        moved_px,
         distance_mm: d,
         cos_theta,
         vignetting,
         lux_at_1m,
     })
+}
+
+/// The pixel nearest `from` (Euclidean, within `radius`, ties to the lower row then column)
+/// where `valid` holds and at least [`FALLBACK_NEIGHBOURS`] of its in-image 3x3 neighbours also
+/// hold.
+fn nearest_well_decoded(
+    w: u32,
+    h: u32,
+    from: [u32; 2],
+    radius: f64,
+    valid: &dyn Fn(usize) -> bool,
+) -> Option<[u32; 2]> {
+    let r = radius.floor().max(0.0) as i64;
+    let (w, h) = (i64::from(w), i64::from(h));
+    let (fx, fy) = (i64::from(from[0]), i64::from(from[1]));
+    let well = |x: i64, y: i64| -> bool {
+        if !valid((y * w + x) as usize) {
+            return false;
+        }
+        let (mut inside, mut ok) = (0u32, 0u32);
+        for (dx, dy) in (-1..=1).flat_map(|dy| (-1..=1).map(move |dx| (dx, dy))) {
+            let (nx, ny) = (x + dx, y + dy);
+            if (dx, dy) == (0, 0) || nx < 0 || ny < 0 || nx >= w || ny >= h {
+                continue;
+            }
+            inside += 1;
+            ok += u32::from(valid((ny * w + nx) as usize));
+        }
+        f64::from(ok) >= FALLBACK_NEIGHBOURS * f64::from(inside)
+    };
+    let mut best: Option<(i64, i64, i64)> = None;
+    for y in (fy - r).max(0)..=(fy + r).min(h - 1) {
+        for x in (fx - r).max(0)..=(fx + r).min(w - 1) {
+            let d2 = (x - fx).pow(2) + (y - fy).pow(2);
+            if (d2 as f64) > radius * radius || best.is_some_and(|(b, _, _)| b <= d2) {
+                continue;
+            }
+            if well(x, y) {
+                best = Some((d2, x, y));
+            }
+        }
+    }
+    best.map(|(_, x, y)| [x as u32, y as u32])
 }
 
 #[cfg(test)]
@@ -325,6 +417,74 @@ mod tests {
         let r = LuxReadings { reference_pixel: Some([50, 2]), ..LuxReadings::parse("0=300").unwrap() };
         let e = apply_lux(&mut m, &r).unwrap_err().to_string();
         assert!(e.contains("outside"), "{e}");
+    }
+
+    /// A `w`x`h` camera on the same wall, with every surface point inside `holes` (camera
+    /// pixels) knocked out, as undecoded dark paint leaves it.
+    fn wall_with_holes(w: u32, h: u32, holes: impl Fn(u32, u32) -> bool) -> StageModel {
+        let mut m = wall();
+        let n = (w * h) as usize;
+        let (cx, cy, f) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w as f64);
+        m.camera = CameraIntrinsics { width: w, height: h, fx: f, fy: f, cx, cy };
+        m.points.clear();
+        m.correspondences[0].clear();
+        for i in 0..n as u32 {
+            let (x, y) = (i % w, i / w);
+            let p = [(x as f64 - cx) / f * 1500.0, (y as f64 - cy) / f * 1500.0, 1500.0];
+            let q = [((p[0] - 200.0) / 1500.0 * 30.0 + 16.0) as f32, (p[1] / 1500.0 * 30.0 + 12.0) as f32];
+            m.points.push(if holes(x, y) { [f32::NAN; 3] } else { p.map(|v| v as f32) });
+            m.correspondences[0].push(q);
+        }
+        m.normals = vec![[0.0, 0.0, -1.0]; n];
+        m
+    }
+
+    /// A 7x7 undecoded square around (100, 50) in a 200x100 image (fallback radius 6.7 px).
+    fn square_hole(x: u32, y: u32) -> bool {
+        (97..=103).contains(&x) && (47..=53).contains(&y)
+    }
+
+    #[test]
+    fn reference_on_an_undecoded_hole_falls_back_to_the_nearest_well_decoded_pixel() {
+        let readings =
+            LuxReadings { reference_pixel: Some([100, 50]), ..LuxReadings::parse("0=300").unwrap() };
+        let mut m = wall_with_holes(200, 100, square_hole);
+        let fit = apply_lux(&mut m, &readings).unwrap()[0].clone();
+        assert_eq!(fit.requested_pixel, Some([100, 50]));
+        // Pixels on the hole's rim (4 px away) have undecoded neighbours; the nearest with at
+        // least 6 of 8 decoded neighbours are 5 px away, and the tie goes to the upper row.
+        assert_eq!(fit.reference_pixel, [100, 45], "{fit:?}");
+        assert_eq!(fit.moved_px, 5.0);
+        // The fit used the substitute's geometry.
+        let x = m.points[45 * 200 + 100];
+        let d = (((x[0] - 200.0) as f64).powi(2) + (x[1] as f64).powi(2) + (x[2] as f64).powi(2)).sqrt();
+        assert!((fit.distance_mm - d).abs() < 1e-6 * d, "{fit:?}");
+        // A decoded reference is used as given.
+        let mut m = wall_with_holes(200, 100, |_, _| false);
+        let fit = apply_lux(&mut m, &readings).unwrap()[0].clone();
+        assert_eq!((fit.reference_pixel, fit.moved_px), ([100, 50], 0.0));
+    }
+
+    #[test]
+    fn an_isolated_lucky_pixel_is_passed_over() {
+        // (100, 48) decoded inside the hole, 2 px from the reference, but all its neighbours
+        // are undecoded: not trusted.
+        let readings =
+            LuxReadings { reference_pixel: Some([100, 50]), ..LuxReadings::parse("0=300").unwrap() };
+        let mut m = wall_with_holes(200, 100, |x, y| square_hole(x, y) && (x, y) != (100, 48));
+        let fit = &apply_lux(&mut m, &readings).unwrap()[0];
+        assert_eq!(fit.reference_pixel, [100, 45], "{fit:?}");
+    }
+
+    #[test]
+    fn reference_far_from_any_decoded_pixel_is_refused() {
+        // Nothing decoded within 6.7 px of (100, 50): the left three quarters are undecoded.
+        let readings =
+            LuxReadings { reference_pixel: Some([100, 50]), ..LuxReadings::parse("0=300").unwrap() };
+        let mut m = wall_with_holes(200, 100, |x, _| x < 150);
+        let e = apply_lux(&mut m, &readings).unwrap_err().to_string();
+        assert!(e.contains("[100, 50]") && e.contains("projector 0"), "{e}");
+        assert!(e.contains("not on a reconstructed surface point") && e.contains("within 7 px"), "{e}");
     }
 
     #[test]

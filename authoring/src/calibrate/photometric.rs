@@ -293,6 +293,15 @@ pub fn calibrate_photometry(
         p.black = *b;
     }
     report.lux = apply_lux(model, lux)?;
+    for f in &report.lux {
+        if let Some(req) = f.requested_pixel.filter(|&r| r != f.reference_pixel) {
+            report.warnings.push(format!(
+                "projector {}: the lux reference pixel ({}, {}) decoded no surface point this \
+                 projector lights; the nearest well-decoded pixel, ({}, {}), {:.1} px away, was used",
+                f.projector, req[0], req[1], f.reference_pixel[0], f.reference_pixel[1], f.moved_px
+            ));
+        }
+    }
     model.gain = gain_map(model, &lit_refs)?;
     let lux0 = model.projectors[0].lux_at_1m as f32;
     report.stray_lux = stray.map(|s| s * lux0);
@@ -628,8 +637,10 @@ impl PhotometricReport {
                     lux: self.lux.iter().find(|l| l.projector == k).map(|l| LuxFigures {
                         distance_mm: l.distance_mm,
                         lux_at_1m: l.lux_at_1m,
+                        moved_px: l.moved_px,
                         reading: l.reading,
                         reference_pixel: l.reference_pixel,
+                        requested_pixel: l.requested_pixel,
                     }),
                     projector: k,
                     refine_median_shift_px: f64::from(t.refine.median_shift),
@@ -645,8 +656,10 @@ impl PhotometricReport {
 
 /// The photometric summary's file name, in the stage folder.
 pub const PHOTOMETRIC_FILE: &str = "photometric.json";
-/// Version of [`PhotometricSummary`]; a reader refuses a newer one.
-pub const PHOTOMETRIC_VERSION: u32 = 1;
+/// Version of [`PhotometricSummary`]; a reader refuses a newer one. 2: the lux figures say
+/// which reference pixel was requested and how far the used one lies from it (version 1 files,
+/// without them, still load).
+pub const PHOTOMETRIC_VERSION: u32 = 2;
 
 /// `photometric.json`: the photometric calibration's figures per projector. Fields are in
 /// alphabetical order, as the file has always had them; values that are `f32` in the
@@ -686,8 +699,15 @@ pub struct ProjectorPhotometry {
 pub struct LuxFigures {
     pub distance_mm: f64,
     pub lux_at_1m: f64,
+    /// Camera pixels between the requested and the used reference pixel (0: used as given).
+    #[serde(default)]
+    pub moved_px: f64,
     pub reading: f64,
+    /// The pixel the fit used.
     pub reference_pixel: [u32; 2],
+    /// The pixel the conservator named (None: chosen near the principal point).
+    #[serde(default)]
+    pub requested_pixel: Option<[u32; 2]>,
 }
 
 #[cfg(test)]
@@ -837,6 +857,15 @@ mod tests {
         let back: PhotometricSummary = serde_json::from_str(&text).unwrap();
         assert_eq!(back, report.summary());
         assert_eq!(back.version, PHOTOMETRIC_VERSION);
+    }
+
+    #[test]
+    fn a_version_1_lux_figure_still_loads() {
+        // Written before the fallback reference pixel: no requested pixel, nothing moved.
+        let text =
+            r#"{"distance_mm": 1000.0, "lux_at_1m": 400.0, "reading": 400.0, "reference_pixel": [3, 4]}"#;
+        let l: LuxFigures = serde_json::from_str(text).unwrap();
+        assert_eq!((l.requested_pixel, l.moved_px, l.reference_pixel), (None, 0.0, [3, 4]));
     }
 
     #[test]

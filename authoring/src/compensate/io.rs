@@ -22,8 +22,9 @@ pub const CERTIFICATE_FILE: &str = "certificate.bin";
 pub const LIGHT_FILE: &str = "light.json";
 
 /// Version of [`Summary`]; a reader refuses a newer one. Files written before the field
-/// existed read as version 1 (the same fields).
-pub const SUMMARY_VERSION: u32 = 1;
+/// existed read as version 1 (the same fields). 2: `meter_accuracy` (version 1 files read
+/// with 0, the meter taken as exact, as they were computed).
+pub const SUMMARY_VERSION: u32 = 2;
 
 /// `compensation.json`: the parameters a compensation ran with and its figures (read back by
 /// the window and by its bundle export).
@@ -36,6 +37,9 @@ pub struct Summary {
     /// The smoothness exponent m as written on the command line (`8`, `inf`).
     pub m: String,
     pub margin: f64,
+    /// The lux meter's relative accuracy the limit allowed for (0 in version 1 files).
+    #[serde(default)]
+    pub meter_accuracy: f64,
     pub clip_fraction: f64,
     pub certificate_reduction: u32,
     pub stats: Stats,
@@ -59,6 +63,11 @@ pub enum SummaryError {
 }
 
 impl Summary {
+    /// The share of E_bound held back: margin and meter accuracy together.
+    pub fn combined_margin(&self) -> f64 {
+        super::combined_margin(self.margin, self.meter_accuracy)
+    }
+
     /// Reads `dir/compensation.json`.
     pub fn load(dir: &Path) -> Result<Summary, SummaryError> {
         let path = dir.join(SUMMARY_FILE);
@@ -94,6 +103,7 @@ pub fn save(
         e_bound_lux: params.e_bound_lux,
         m: params.m.to_string(),
         margin: params.margin,
+        meter_accuracy: params.meter_accuracy,
         clip_fraction: params.clip_fraction,
         certificate_reduction: params.reduction,
         stats: comp.stats.clone(),
@@ -151,6 +161,7 @@ mod tests {
             e_bound_lux: 150.0,
             m: "8".into(),
             margin: 0.05,
+            meter_accuracy: 0.1,
             clip_fraction: 0.01,
             certificate_reduction: 2,
             stats: Stats { peak_lux: 139.5, covered_points: 10, ..Stats::default() },
@@ -158,15 +169,23 @@ mod tests {
         let json = serde_json::to_string_pretty(&s).unwrap();
         write(dir.path(), &json);
         let back = Summary::load(dir.path()).unwrap();
-        assert_eq!((back.version, back.stats.peak_lux, back.m.as_str()), (1, 139.5, "8"));
+        assert_eq!((back.version, back.stats.peak_lux, back.m.as_str()), (2, 139.5, "8"));
+        assert_eq!(back.meter_accuracy, 0.1);
+        assert!((back.combined_margin() - 0.145).abs() < 1e-12);
 
+        // Version 1, written before the meter's accuracy was allowed for: read with 0.
+        let v1 = json.replace("\"version\": 2", "\"version\": 1").replace("\"meter_accuracy\": 0.1,", "");
+        assert_ne!(v1, json);
+        write(dir.path(), &v1);
+        let back = Summary::load(dir.path()).unwrap();
+        assert_eq!((back.version, back.meter_accuracy), (1, 0.0));
         // Written before the version field: version 1.
-        write(dir.path(), &json.replace("\"version\": 1,", ""));
+        write(dir.path(), &v1.replace("\"version\": 1,", ""));
         assert_eq!(Summary::load(dir.path()).unwrap().version, 1);
         // A newer version, a misspelt field and a missing file are refused by name.
-        write(dir.path(), &json.replace("\"version\": 1", "\"version\": 2"));
+        write(dir.path(), &json.replace("\"version\": 2", "\"version\": 3"));
         let e = Summary::load(dir.path()).unwrap_err().to_string();
-        assert!(e.contains("version 2"), "{e}");
+        assert!(e.contains("version 3"), "{e}");
         write(dir.path(), &json.replace("peak_lux", "peak_lx"));
         let e = Summary::load(dir.path()).unwrap_err().to_string();
         assert!(e.contains("peak_lx") && e.contains("compensation.json"), "{e}");

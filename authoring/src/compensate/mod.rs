@@ -51,6 +51,16 @@ pub enum CompensateError {
     BadBound(f64),
     #[error("safety margin {0} is invalid (expected a fraction 0 <= margin <= 0.5, e.g. 0.05)")]
     BadMargin(f64),
+    #[error(
+        "lux-meter accuracy {0} is invalid (expected a fraction 0 <= accuracy < 0.5, e.g. 0.10 for \
+         a class-B meter)"
+    )]
+    BadMeterAccuracy(f64),
+    #[error(
+        "lux-meter accuracy {accuracy} and safety margin {margin} together hold back {combined:.3} \
+         of E_bound, more than the 0.5 a bundle's light model accepts; lower one of them"
+    )]
+    CombinedMargin { accuracy: f64, margin: f64, combined: f64 },
     #[error("smoothness exponent m = {0} is invalid (expected a number >= 0, or infinity)")]
     BadExponent(f64),
     #[error("clip fraction {0} is invalid (expected 0 <= fraction <= 0.5)")]
@@ -60,7 +70,8 @@ pub enum CompensateError {
     #[error(
         "the projectors' black level (plus {room_lux:.2} lux of room light) alone gives \
          {black_lux:.2} lux at camera pixel ({x}, {y}), above the usable bound {limit:.2} lux \
-         (E_bound {e_bound} lux less the {margin} safety margin): no frames can stay under this \
+         (E_bound {e_bound} lux less the {margin:.4} held back for the margin and the lux \
+         meter's accuracy): no frames can stay under this \
          bound; raise E_bound, dim the room or switch projectors off"
     )]
     BlackAboveBound { black_lux: f64, room_lux: f64, x: u32, y: u32, limit: f64, e_bound: f64, margin: f64 },
@@ -91,8 +102,13 @@ pub struct Params {
     pub e_bound_lux: f64,
     /// Smoothness exponent of Eq. 12.
     pub m: Exponent,
-    /// Safety margin: the recomputed irradiance must stay at or below `E_bound * (1 - margin)`.
+    /// Safety margin: the recomputed irradiance must stay at or below
+    /// `E_bound * (1 - meter_accuracy) * (1 - margin)`.
     pub margin: f64,
+    /// Relative accuracy of the lux meter that calibrated `lux_at_1m` (a fraction): a reading
+    /// low by this share makes every modelled lux low by the factor `1 - meter_accuracy`, so the
+    /// modelled peak must stay under `E_bound * (1 - meter_accuracy)`.
+    pub meter_accuracy: f64,
     /// Fraction of object points that may be dimmed locally (below the global scale) so that
     /// a few hard points do not darken the whole object; 0 is the paper's pure global scale.
     pub clip_fraction: f64,
@@ -100,11 +116,46 @@ pub struct Params {
     pub reduction: u32,
 }
 
+/// The lux meter's accuracy assumed unless told: a class-B illuminance meter. DIN 5032-7
+/// (1985 edition) sets the total error limits ("Gesamtfehler") of its classes L, A, B and C at
+/// 3 %, 5 %, 10 % and 20 % (the table as reproduced in the MX-Elektronik Minilux manual,
+/// manuals.online/mx-elektronik/measuring-instrument/minilux/user-manual/1no14); the 2017
+/// edition reworks the classification but class B remains the usual field instrument (e.g.
+/// Benning's "Luxmeter B"). A museum's handheld meter is at best that, so 10 %.
+pub const DEFAULT_METER_ACCURACY: f64 = 0.10;
+
+/// The share of E_bound held back when the meter may read low by `meter_accuracy` and
+/// `margin` is kept on top: `1 - (1 - meter_accuracy) (1 - margin)`. The bundle's light model
+/// carries this as its safety margin, so the appliance enforces the same limit.
+pub fn combined_margin(margin: f64, meter_accuracy: f64) -> f64 {
+    1.0 - (1.0 - meter_accuracy) * (1.0 - margin)
+}
+
 impl Params {
+    /// Parameters with the default clip fraction, reduction and [`DEFAULT_METER_ACCURACY`].
     pub fn new(e_bound_lux: f64, m: Exponent, margin: f64) -> Result<Self, CompensateError> {
-        let p = Self { e_bound_lux, m, margin, clip_fraction: 0.01, reduction: 2 };
+        let p = Self {
+            e_bound_lux,
+            m,
+            margin,
+            meter_accuracy: DEFAULT_METER_ACCURACY,
+            clip_fraction: 0.01,
+            reduction: 2,
+        };
         p.validate()?;
         Ok(p)
+    }
+
+    /// The same parameters for a meter of relative accuracy `u` (a fraction, e.g. 0.10).
+    pub fn with_meter_accuracy(self, u: f64) -> Result<Self, CompensateError> {
+        let p = Self { meter_accuracy: u, ..self };
+        p.validate()?;
+        Ok(p)
+    }
+
+    /// The margin the bundle's light model carries: see [`combined_margin`].
+    pub fn combined_margin(&self) -> f64 {
+        combined_margin(self.margin, self.meter_accuracy)
     }
 
     pub fn validate(&self) -> Result<(), CompensateError> {
@@ -113,6 +164,18 @@ impl Params {
         }
         if !(0.0..=0.5).contains(&self.margin) {
             return Err(CompensateError::BadMargin(self.margin));
+        }
+        // `contains` is false for NaN; infinities are outside the range.
+        if !(0.0..0.5).contains(&self.meter_accuracy) {
+            return Err(CompensateError::BadMeterAccuracy(self.meter_accuracy));
+        }
+        let combined = self.combined_margin();
+        if combined > 0.5 {
+            return Err(CompensateError::CombinedMargin {
+                accuracy: self.meter_accuracy,
+                margin: self.margin,
+                combined,
+            });
         }
         if !(0.0..=0.5).contains(&self.clip_fraction) {
             return Err(CompensateError::BadClipFraction(self.clip_fraction));
@@ -128,9 +191,11 @@ impl Params {
         Ok(())
     }
 
-    /// The limit the final frames are held to, lux.
+    /// The limit the final frames are held to, lux: `E_bound (1 - u) (1 - margin)`, computed
+    /// as the bundle's light model computes its allowed lux from the combined margin, so the
+    /// two agree to the last bit.
     pub fn limit(&self) -> f64 {
-        self.e_bound_lux * (1.0 - self.margin)
+        self.e_bound_lux * (1.0 - self.combined_margin())
     }
 }
 
@@ -316,7 +381,7 @@ pub fn compensate_on(
             y: y as u32,
             limit,
             e_bound: params.e_bound_lux,
-            margin: params.margin,
+            margin: params.combined_margin(),
         });
     }
     let t0 = std::time::Instant::now();
@@ -341,7 +406,7 @@ pub fn compensate_on(
     // The appliance's own check, written independently of ours, must agree before anything
     // leaves this function: first its coverage test (lit pixels the certificate cannot vouch
     // for go black), then the whole check.
-    let light = certificate::light_model(stage, params.e_bound_lux, params.margin, room);
+    let light = certificate::light_model(stage, params.e_bound_lux, params.combined_margin(), room);
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: enforce done");
     let coverage = certificate::coverage_of_parts(&light, &prep.shared_parts)
         .map_err(CompensateError::IndependentCheck)?;

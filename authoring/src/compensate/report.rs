@@ -160,7 +160,7 @@ pub fn save(
 <style>body{{font-family:sans-serif;max-width:1200px;margin:1em auto}} img{{max-width:560px;image-rendering:pixelated;border:1px solid #ccc}} td{{padding:2px 10px}}</style>
 <h1>Compensation report</h1>
 <table>
-<tr><td>E_bound</td><td>{eb} lx (limit after the {margin} margin: {lim:.2} lx)</td></tr>
+<tr><td>E_bound</td><td>{eb} lx (limit {lim:.2} lx = E_bound × (1 − {u} lux-meter accuracy) × (1 − {margin} margin))</td></tr>
 <tr><td>m</td><td>{m}</td></tr>
 <tr><td>peak recomputed irradiance (final 8-bit frames, certificate)</td><td>{peak:.2} lx</td></tr>
 <tr><td>black level + room light alone, peak</td><td>{black:.2} lx (room {room:.2} lx)</td></tr>
@@ -178,6 +178,7 @@ pub fn save(
 "#,
         eb = params.e_bound_lux,
         margin = params.margin,
+        u = params.meter_accuracy,
         lim = params.limit(),
         m = params.m,
         peak = s.peak_lux,
@@ -244,6 +245,11 @@ mod tests {
         for m in ["m = 0:", "m = 1:", "m = 8:", "m = inf:"] {
             assert!(html.contains(m), "{m} missing");
         }
+        // The bound names the meter's accuracy: 150 x 0.9 x 0.95 = 128.25.
+        assert!(
+            html.contains("limit 128.25 lx = E_bound × (1 − 0.1 lux-meter accuracy) × (1 − 0.05 margin)"),
+            "{html}"
+        );
         let heat = image::open(dir.path().join("irradiance.png")).unwrap().to_rgb8();
         assert_eq!(heat.dimensions(), (cam.width, cam.height));
     }

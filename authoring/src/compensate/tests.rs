@@ -125,6 +125,18 @@ fn bad_input_is_refused_clearly() {
     }
     assert!(Params::new(100.0, Exponent::Finite(-1.0), 0.05).unwrap_err().to_string().contains(">= 0"));
     assert!(Params::new(100.0, Exponent::Finite(1.0), 0.6).unwrap_err().to_string().contains("0.5"));
+    // The lux meter's accuracy: a fraction below one half, finite; with the margin it may hold
+    // back at most half of E_bound (what a bundle's light model accepts).
+    let p = Params::new(100.0, Exponent::Finite(1.0), 0.05).unwrap();
+    assert_eq!(p.meter_accuracy, crate::compensate::DEFAULT_METER_ACCURACY);
+    assert!((p.limit() - 100.0 * 0.9 * 0.95).abs() < 1e-9, "{}", p.limit());
+    for bad in [-0.01, 0.5, 0.7, f64::NAN, f64::INFINITY] {
+        let e = p.clone().with_meter_accuracy(bad).unwrap_err().to_string();
+        assert!(e.contains("lux-meter accuracy") && e.contains("< 0.5"), "{bad}: {e}");
+    }
+    let e = Params::new(100.0, Exponent::Finite(1.0), 0.3).unwrap().with_meter_accuracy(0.4).unwrap_err();
+    assert!(e.to_string().contains("0.580") && e.to_string().contains("lower one"), "{e}");
+    assert!((p.clone().with_meter_accuracy(0.0).unwrap().limit() - 95.0).abs() < 1e-9);
     // A bound below what black level alone gives.
     let prep = Prepared::new(&s.model, 2).unwrap();
     let black_peak =
@@ -192,6 +204,7 @@ proptest! {
         m in arb_exponent(),
         bound_factor in 1.05f64..40.0,
         margin in 0.03f64..0.2,
+        meter in 0.0f64..0.3,
         clip in 0.0f64..0.05,
         tseed in 0u64..100,
         noise in 0.0f32..0.5,
@@ -206,10 +219,13 @@ proptest! {
         }
         let prep = Prepared::new(&s.model, 2).unwrap();
         let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
-        let e_bound = black * bound_factor / (1.0 - margin);
-        let p = Params { e_bound_lux: e_bound, m, margin, clip_fraction: clip, reduction };
+        let e_bound = black * bound_factor / ((1.0 - margin) * (1.0 - meter));
+        let p = Params { e_bound_lux: e_bound, m, margin, meter_accuracy: meter, clip_fraction: clip, reduction };
         let c = compensate(&s.model, &t, &p).unwrap();
         prop_assert!(c.stats.peak_lux <= p.limit());
+        // The bundle's light model allows exactly the limit compensation held to.
+        prop_assert_eq!(c.light.allowed_lux(), p.limit());
+        prop_assert!(p.limit() <= e_bound * (1.0 - meter) * (1.0 - margin) * (1.0 + 1e-12));
         // Every lit pixel lies in its point's block, with a plausible coefficient: nothing
         // had to be set black for the appliance's coverage test.
         prop_assert_eq!(c.stats.unvouched_pixels, 0);

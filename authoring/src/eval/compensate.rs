@@ -357,6 +357,38 @@ mod tests {
         assert!(de.is_finite() && de > 0.0, "{de}");
         assert!(rows.iter().any(|r| r.name.contains("m = inf: mean luminance")));
     }
+
+    /// The tester's case: the lux meter read 10 % low, so every projector's calibrated
+    /// brightness is 10 % low. With the default meter accuracy the TRUE peak stays under
+    /// E_bound; taking the meter as exact (`--meter-accuracy 0`) the same stage goes over.
+    #[test]
+    fn meter_accuracy_keeps_the_true_peak_under_e_bound_when_the_meter_read_low() {
+        // The evaluation size: at the tiny size the certificate's own slack (about 20 %) hides
+        // a 10 % meter error; here it is about 3 %.
+        let cfg = SceneConfig {
+            camera: [480, 360],
+            projector: [560, 420],
+            ..SceneConfig::tiny(SceneName::Vase, 1)
+        };
+        let stage = VirtualStage::new(&cfg).unwrap();
+        let mut model = stage.truth();
+        for p in &mut model.projectors {
+            p.lux_at_1m *= 0.9;
+        }
+        let target = pristine_target(&stage);
+        let run = |p: &Params| {
+            let c = compensate::compensate(&model, &target, p).unwrap();
+            (true_peak(&stage, &c.frames), c.stats)
+        };
+        let p = Params::new(150.0, Exponent::Finite(8.0), 0.05).unwrap();
+        let (tp, stats) = run(&p);
+        // The bound must bind, or the test would prove nothing.
+        assert!(stats.limited_by_bound > 0 && stats.peak_lux > 0.95 * p.limit(), "{stats:?}");
+        assert!(tp <= 150.0, "true peak {tp} lx > E_bound 150 lx (certificate peak {})", stats.peak_lux);
+        let exact = p.with_meter_accuracy(0.0).unwrap();
+        let (tp0, stats0) = run(&exact);
+        assert!(tp0 > 150.0, "meter taken as exact: true peak {tp0} lx (certificate {})", stats0.peak_lux);
+    }
 }
 
 /// The light bound over the whole surface on the built-in scenes (issue "The light bound on

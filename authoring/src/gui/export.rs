@@ -74,7 +74,12 @@ pub fn description(
         object: ObjectDesc { id: e.object_id.clone(), name: e.object_name.clone() },
         light: LightDesc {
             e_bound_lux: settings.compensate.e_bound_lux,
-            safety_margin: settings.compensate.margin,
+            // The window's compensation runs with the default lux-meter accuracy; the bundle
+            // carries the margin and the accuracy together, the limit compensation held to.
+            safety_margin: restage_authoring::compensate::combined_margin(
+                settings.compensate.margin,
+                restage_authoring::compensate::DEFAULT_METER_ACCURACY,
+            ),
             ambient_lux: room_lux,
             lux_shares: None,
         },

@@ -26,9 +26,14 @@ pub struct Args {
     /// Smoothness exponent m of Eq. 12 (>= 0, or "inf").
     #[arg(long, default_value = "8")]
     pub m: Exponent,
-    /// Safety margin: frames stay at or below E_bound * (1 - margin).
+    /// Safety margin: frames stay at or below E_bound * (1 - meter accuracy) * (1 - margin).
     #[arg(long, default_value_t = 0.05)]
     pub margin: f64,
+    /// Relative accuracy of the lux meter that calibrated the stage (a fraction, 0 <= u < 0.5):
+    /// a meter reading low by u leaves every modelled lux low by (1 - u), so the bound is
+    /// lowered by that factor. The default is a class-B meter (DIN 5032-7), about 10 %.
+    #[arg(long, default_value_t = compensate::DEFAULT_METER_ACCURACY)]
+    pub meter_accuracy: f64,
     /// Fraction of object points that may be dimmed locally rather than darkening everything.
     #[arg(long, default_value_t = 0.01)]
     pub clip_fraction: f64,
@@ -68,7 +73,8 @@ impl std::fmt::Display for CompensateSummary {
         let s = &self.stats;
         write!(
             f,
-            "{} frames in {}: peak {:.2} lx (limit {:.2} lx, E_bound {} lx), scale {:.4}, \
+            "{} frames in {}: peak {:.2} lx (limit {:.2} lx: E_bound {} lx less the lux meter's \
+             accuracy and the margin), scale {:.4}, \
              limited by bound {:.2} % / saturation {:.2} % of {} points; report: {}",
             self.projectors,
             self.out.display(),
@@ -121,6 +127,7 @@ pub fn params(args: &Args) -> Result<Params> {
         e_bound_lux: args.ebound_lux,
         m: args.m,
         margin: args.margin,
+        meter_accuracy: args.meter_accuracy,
         clip_fraction: args.clip_fraction,
         reduction: args.reduction,
     };

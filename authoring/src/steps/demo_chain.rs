@@ -223,9 +223,12 @@ pub fn run_chain(
             100.0 * s.limited_by_bound as f64 / s.covered_points.max(1) as f64
         );
         log(format!(
-            "6 compensate  {id:<8} brightest point {:.1} lx, allowed {:.1} (bound {E_BOUND_LUX} lx), truly {tp:.1}; \
-             colour difference {de_mean:.1} ΔE00",
-            s.peak_lux, s.limit_lux
+            "6 compensate  {id:<8} brightest point {:.1} lx, allowed {:.1} (bound {E_BOUND_LUX} lx less \
+             {:.0} % lux-meter accuracy and {:.0} % margin), truly {tp:.1}; colour difference {de_mean:.1} ΔE00",
+            s.peak_lux,
+            s.limit_lux,
+            100.0 * params.meter_accuracy,
+            100.0 * params.margin
         ));
         let img = LinearImage {
             width: cam.width,
@@ -269,7 +272,9 @@ pub fn run_chain(
         },
         light: LightDesc {
             e_bound_lux: E_BOUND_LUX,
-            safety_margin: MARGIN,
+            // The margin and the meter's accuracy together, so the appliance enforces the
+            // limit compensation held the frames to.
+            safety_margin: params.combined_margin(),
             ambient_lux: room,
             lux_shares: None,
         },

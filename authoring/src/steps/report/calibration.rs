@@ -258,8 +258,18 @@ impl Page<'_> {
                 pct(m)
             });
             let lux = p.lux.as_ref().map_or("–".into(), |l| {
+                // A requested pixel that decoded nothing was replaced by the nearest decoded one.
+                let moved = match l.requested_pixel {
+                    Some(r) if r != l.reference_pixel => format!(
+                        " (requested ({}, {}) decoded no surface; used the nearest decoded pixel, {} px away)",
+                        r[0],
+                        r[1],
+                        num(l.moved_px, 1)
+                    ),
+                    _ => String::new(),
+                };
                 format!(
-                    "{} lx at camera pixel ({}, {}), {} mm away",
+                    "{} lx at camera pixel ({}, {}), {} mm away{moved}",
                     num(l.reading, 1),
                     l.reference_pixel[0],
                     l.reference_pixel[1],

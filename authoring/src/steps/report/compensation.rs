@@ -66,7 +66,7 @@ impl Page<'_> {
         let over = st.peak_lux.partial_cmp(&limit).is_none_or(|o| o.is_gt());
         let _ = write!(
             self.html,
-            r#"<h3 id="scene-{}">Scene “{}” (<code>{}</code>)</h3><div class="cert{}"><h4>Light certificate</h4><p>Peak illuminance found: <strong>{} lx</strong>. Allowed: <strong>{} lx</strong> (E_bound {} lx less the {} safety margin). {}</p>"#,
+            r#"<h3 id="scene-{}">Scene “{}” (<code>{}</code>)</h3><div class="cert{}"><h4>Light certificate</h4><p>Peak illuminance found: <strong>{} lx</strong>. Allowed: <strong>{} lx</strong> (E_bound {} lx less {} for the lux meter's accuracy and the {} safety margin). {}</p>"#,
             href(&s.id),
             esc(&s.name),
             esc(&s.id),
@@ -74,6 +74,7 @@ impl Page<'_> {
             num(st.peak_lux, 2),
             num(limit, 2),
             num(sm.e_bound_lux, 1),
+            pct(sm.meter_accuracy),
             pct(sm.margin),
             verdict(st.peak_lux, limit)
         );

@@ -263,6 +263,7 @@ mod tests {
             e_bound_lux: 150.0,
             m: "8".into(),
             margin: 0.05,
+            meter_accuracy: 0.1,
             clip_fraction: 0.01,
             certificate_reduction: 2,
             stats: Stats { peak_lux: 141.25, limit_lux: 142.5, covered_points: 10, ..Stats::default() },

@@ -20,6 +20,7 @@ fn scene(id: &str, name: &str, peak: f64) -> Scene {
             e_bound_lux: 150.0,
             m: "8".into(),
             margin: 0.05,
+            meter_accuracy: 0.1,
             clip_fraction: 0.01,
             certificate_reduction: 2,
             stats: Stats {
@@ -109,8 +110,10 @@ fn example() -> Inputs {
         lux: Some(LuxFigures {
             distance_mm: 1050.0,
             lux_at_1m: 450.0,
+            moved_px: if k == 1 { 5.0 } else { 0.0 },
             reading: 410.2,
             reference_pixel: [400, 300],
+            requested_pixel: Some(if k == 1 { [400, 305] } else { [400, 300] }),
         }),
         projector: k,
         refine_median_shift_px: 0.1,
@@ -235,7 +238,7 @@ fn the_irradiance_bar_runs_from_0_to_e_bound_in_lux_with_the_allowed_level_marke
 fn the_certificate_says_what_was_found_allowed_and_assumed() {
     let mut inp = example();
     let html = render(&inp);
-    assert!(html.contains("Peak illuminance found: <strong>142.40 lx</strong>. Allowed: <strong>142.50 lx</strong> (E_bound 150.0 lx less the 5.00 % safety margin)"), "{html}");
+    assert!(html.contains("Peak illuminance found: <strong>142.40 lx</strong>. Allowed: <strong>142.50 lx</strong> (E_bound 150.0 lx less 10.00 % for the lux meter's accuracy and the 5.00 % safety margin)"), "{html}");
     assert!(
         html.contains("What is guaranteed") && html.contains("Under which assumptions a certificate holds")
     );
@@ -265,6 +268,18 @@ fn names_and_paths_from_files_are_escaped() {
     assert!(html.contains("&lt;script&gt;alert(1)&lt;/script&gt;"));
     assert!(html.contains(r#"<image href="comp/%3Cscript%3E/proj0.png""#));
     assert!(html.contains(r##"href="#scene-%3Cscript%3E""##) && html.contains(r#"id="scene-%3Cscript%3E""#));
+}
+
+#[test]
+fn a_lux_reference_that_was_moved_says_so() {
+    let html = render(&example());
+    assert!(
+        html.contains(
+            "(requested (400, 305) decoded no surface; used the nearest decoded pixel, 5.0 px away)"
+        ),
+        "{html}"
+    );
+    assert_eq!(html.matches("requested (").count(), 1, "only projector 1's reference moved");
 }
 
 #[test]
