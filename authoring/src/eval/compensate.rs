@@ -404,7 +404,13 @@ mod whole_surface {
         for scene in SceneName::ALL {
             for seed in [1, 5] {
                 // Coarse projectors make each pixel's footprint large: the hardest case.
-                let cfg = SceneConfig { scene, seed, camera: [200, 150], projector: [160, 120], ..SceneConfig::default() };
+                let cfg = SceneConfig {
+                    scene,
+                    seed,
+                    camera: [200, 150],
+                    projector: [160, 120],
+                    ..SceneConfig::default()
+                };
                 let stage = VirtualStage::new(&cfg).unwrap();
                 let comp = compensate::compensate(&stage.truth(), &pristine_target(&stage), &p).unwrap();
                 let peak = stage.surface_peak(&comp.frames).unwrap();

@@ -197,12 +197,12 @@ fn suspect_rims(work: &[u8], w: usize, h: usize, mask: &[bool], is_loss: &dyn Fn
     let mut count = 0u32;
     let neighbours = |i: usize| {
         let (x, y) = ((i % w) as i64, (i / w) as i64);
-        (-1i64..=1).flat_map(move |dy| (-1i64..=1).map(move |dx| (x + dx, y + dy))).filter_map(
-            move |(nx, ny)| {
-                (nx >= 0 && ny >= 0 && nx < w as i64 && ny < h as i64 && (nx, ny) != (x, y))
-                    .then(|| ny as usize * w + nx as usize)
-            },
-        )
+        (-1i64..=1)
+            .flat_map(move |dy| (-1i64..=1).map(move |dx| (x + dx, y + dy)))
+            .filter(move |&(nx, ny)| {
+                nx >= 0 && ny >= 0 && nx < w as i64 && ny < h as i64 && (nx, ny) != (x, y)
+            })
+            .map(move |(nx, ny)| ny as usize * w + nx as usize)
     };
     for start in 0..n {
         if comp[start] != u32::MAX || !usable(start) || !is_loss(work[start]) {
