@@ -55,7 +55,9 @@ fn compensation_with_a_mask_leaves_dark_what_lights_only_the_outside() {
             "stage",
             "restored.png",
             "--ebound-lux",
-            "150",
+            // The synthetic stage's projectors have black levels up to 2 %: at 150 lx their
+            // black alone, charged at the whole-footprint coefficients, is over the bound.
+            "400",
             "--device",
             "cpu",
             "--out",

@@ -377,7 +377,10 @@ mod tests {
     fn tiny_virtual_vase_is_classified_well() {
         let case = scene_case(SceneName::Vase, [160, 120], 1).unwrap();
         let e = evaluate_photo(&case.label, &case.photo, &case.truth, &case.names, &case.display, 1).unwrap();
-        assert!(e.ours.accuracy > 0.9, "{:?}", e.ours);
+        // At 160x120 about one object pixel in ten spans a paint edge or the silhouette (the
+        // virtual camera integrates over each pixel's area; the truth there is the majority
+        // label): 0.896 measured, against 0.9+ when pixels were point samples.
+        assert!(e.ours.accuracy > 0.85, "{:?}", e.ours);
         let dir = tempfile::tempdir().unwrap();
         save_case(dir.path(), &case, &e).unwrap();
         let truth = LabelMap::load(&dir.path().join("truth.png")).unwrap();

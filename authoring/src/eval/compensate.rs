@@ -359,35 +359,41 @@ mod tests {
     }
 
     /// The tester's case: the lux meter read 10 % low, so every projector's calibrated
-    /// brightness is 10 % low. With the default meter accuracy the TRUE peak stays under
-    /// E_bound; taking the meter as exact (`--meter-accuracy 0`) the same stage goes over.
+    /// brightness is 10 % low; with the default meter accuracy the TRUE peak stays under
+    /// E_bound. And the margin is what keeps it there: a meter reading 20 % low, declared
+    /// (`--meter-accuracy 0.2`), stays under; taken as exact (`--meter-accuracy 0`), the same
+    /// stage goes over. (At 10 % the certificate's own conservatism — coefficients bounded over
+    /// each pixel's stretch of surface — already absorbs most of the error on this stage.)
     #[test]
     fn meter_accuracy_keeps_the_true_peak_under_e_bound_when_the_meter_read_low() {
-        // The evaluation size: at the tiny size the certificate's own slack (about 20 %) hides
-        // a 10 % meter error; here it is about 3 %.
         let cfg = SceneConfig {
             camera: [480, 360],
             projector: [560, 420],
             ..SceneConfig::tiny(SceneName::Vase, 1)
         };
         let stage = VirtualStage::new(&cfg).unwrap();
-        let mut model = stage.truth();
-        for p in &mut model.projectors {
-            p.lux_at_1m *= 0.9;
-        }
         let target = pristine_target(&stage);
-        let run = |p: &Params| {
+        let run = |reading: f64, p: &Params| {
+            let mut model = stage.truth();
+            for pr in &mut model.projectors {
+                pr.lux_at_1m *= reading;
+            }
             let c = compensate::compensate(&model, &target, p).unwrap();
             (true_peak(&stage, &c.frames), c.stats)
         };
         let p = Params::new(150.0, Exponent::Finite(8.0), 0.05).unwrap();
-        let (tp, stats) = run(&p);
+        let (tp, stats) = run(0.9, &p);
         // The bound must bind, or the test would prove nothing.
         assert!(stats.limited_by_bound > 0 && stats.peak_lux > 0.95 * p.limit(), "{stats:?}");
         assert!(tp <= 150.0, "true peak {tp} lx > E_bound 150 lx (certificate peak {})", stats.peak_lux);
-        let exact = p.with_meter_accuracy(0.0).unwrap();
-        let (tp0, stats0) = run(&exact);
-        assert!(tp0 > 150.0, "meter taken as exact: true peak {tp0} lx (certificate {})", stats0.peak_lux);
+        let (tp, stats) = run(0.8, &p.clone().with_meter_accuracy(0.2).unwrap());
+        assert!(tp <= 150.0, "20 % low, declared: true peak {tp} lx (certificate {})", stats.peak_lux);
+        let (tp0, stats0) = run(0.8, &p.clone().with_meter_accuracy(0.0).unwrap());
+        assert!(
+            tp0 > 150.0,
+            "20 % low, taken as exact: true peak {tp0} lx (certificate {})",
+            stats0.peak_lux
+        );
     }
 }
 
@@ -401,32 +407,33 @@ mod whole_surface {
     #[test]
     fn true_peak_over_the_whole_surface_stays_under_the_bound_on_every_scene() {
         let p = Params::new(150.0, Exponent::Finite(8.0), 0.05).unwrap();
-        for scene in SceneName::ALL {
-            for seed in [1, 5] {
-                // Coarse projectors make each pixel's footprint large: the hardest case.
-                let cfg = SceneConfig {
-                    scene,
-                    seed,
-                    camera: [200, 150],
-                    projector: [160, 120],
-                    ..SceneConfig::default()
-                };
-                let stage = VirtualStage::new(&cfg).unwrap();
-                let comp = compensate::compensate(&stage.truth(), &pristine_target(&stage), &p).unwrap();
-                let peak = stage.surface_peak(&comp.frames).unwrap();
-                assert!(
-                    peak.lux <= p.e_bound_lux,
-                    "{} seed {seed}: true peak {:.1} lx at {:?} (projector {} pixel {:?}) > {} lx",
-                    scene.name(),
-                    peak.lux,
-                    peak.point_mm,
-                    peak.projector,
-                    peak.projector_px,
-                    p.e_bound_lux
-                );
-                // The bound does not darken the object: most of it is still lit.
-                assert!(comp.stats.covered_points > 1000, "{}", comp.stats.covered_points);
-            }
+        let cases = SceneName::ALL.into_iter().flat_map(|s| [(s, 1, false), (s, 5, false)]);
+        // The vase on its plinth: light bounced off the plinth counts too.
+        for (scene, seed, plinth) in cases.chain([(SceneName::Vase, 1, true)]) {
+            // Coarse projectors make each pixel's footprint large: the hardest case.
+            let cfg = SceneConfig {
+                scene,
+                seed,
+                camera: [200, 150],
+                projector: [160, 120],
+                plinth,
+                ..SceneConfig::default()
+            };
+            let stage = VirtualStage::new(&cfg).unwrap();
+            let comp = compensate::compensate(&stage.truth(), &pristine_target(&stage), &p).unwrap();
+            let peak = stage.surface_peak(&comp.frames).unwrap();
+            assert!(
+                peak.lux <= p.e_bound_lux,
+                "{} seed {seed} plinth {plinth}: true peak {:.1} lx at {:?} (projector {} pixel {:?}) > {} lx",
+                scene.name(),
+                peak.lux,
+                peak.point_mm,
+                peak.projector,
+                peak.projector_px,
+                p.e_bound_lux
+            );
+            // The bound does not darken the object: most of it is still lit.
+            assert!(comp.stats.covered_points > 1000, "{}", comp.stats.covered_points);
         }
     }
 }
