@@ -420,7 +420,21 @@ mod whole_surface {
                 ..SceneConfig::default()
             };
             let stage = VirtualStage::new(&cfg).unwrap();
-            let comp = compensate::compensate(&stage.truth(), &pristine_target(&stage), &p).unwrap();
+            // As a real decode leaves it: surface the camera sees at more than 80 degrees is not
+            // reconstructed (the tester's path-traced vase lost its neck's silhouette so).
+            let mut model = stage.truth();
+            for i in 0..model.points.len() {
+                let (x, n) = (model.points[i].map(f64::from), model.normals[i].map(f64::from));
+                let d = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
+                if -(x[0] * n[0] + x[1] * n[1] + x[2] * n[2]) / d < 0.17 {
+                    model.points[i] = [f32::NAN; 3];
+                    model.normals[i] = [f32::NAN; 3];
+                    for c in &mut model.correspondences {
+                        c[i] = [f32::NAN; 2];
+                    }
+                }
+            }
+            let comp = compensate::compensate(&model, &pristine_target(&stage), &p).unwrap();
             let peak = stage.surface_peak(&comp.frames).unwrap();
             assert!(
                 peak.lux <= p.e_bound_lux,
