@@ -115,7 +115,7 @@ pub fn remove_specks(work: &mut [u8], w: u32, h: u32, mask: &[bool], min_area: u
 /// A chip's rim is not trusted as a source: a camera pixel there mixes bare clay with the
 /// paint around it, and may be classified as a class that is not there at all (a dark mix
 /// of clay and light paint reads as a dark paint). Rim pixels whose class is rare in the ring
-/// just beyond the rim ([`suspect_rims`]) are filled with the chip, so the chip takes the
+/// just beyond the rim (`suspect_rims`) are filled with the chip, so the chip takes the
 /// colour that surrounds it; a line crossing the chip continues beyond the rim, so its class
 /// is in the ring and its rim pixels stay.
 pub fn fill_losses(work: &mut [u8], w: u32, h: u32, mask: &[bool], loss: &[u8], background: u8) -> usize {
