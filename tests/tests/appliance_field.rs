@@ -74,7 +74,10 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
     // The timer ended the showing while the bundle was still being verified (verifying on
     // the event loop, as before, let the showing run for the whole verification). Later
     // stretches are the new bundle's idle scene (other frames).
-    assert!(stretches[0] <= 400.0 + 300.0, "{stretches:?}");
+    // The slack is for a starved event loop: on a 2-core machine with the verification
+    // worker on one core and parallel tests on the other, the timer's end was seen 466 ms
+    // late (866 ms). Verifying on the loop would hold the showing for the whole verification.
+    assert!(stretches[0] <= 400.0 + 600.0 && stretches[0] < 500.0 * verify_s, "{stretches:?}");
     assert!(verify_s > 1.0, "the slow bundle verified in {verify_s:.2} s: the test shows nothing");
     let ledger =
         Ledger::open(&stage.path("state/ledger.sqlite"), restage_appliance::zone::LocalZone::utc()).unwrap();
