@@ -7,6 +7,7 @@ mod appliance_common;
 
 use std::path::Path;
 use std::process::{Command, Stdio};
+use std::sync::{RwLock, RwLockReadGuard};
 use std::time::{Duration, Instant};
 
 use appliance_common::{BIN, OBJECT, Stage, ask, wait_status};
@@ -19,6 +20,15 @@ fn run_to_exit(config: &Path) -> (bool, String) {
     (o.status.success(), String::from_utf8_lossy(&o.stderr).into_owned())
 }
 
+/// The slow-reload test measures when the timer ends a showing, so it runs alone: the other
+/// tests' appliances on a 2-core machine held its event loop off the CPU for 750 ms (a showing
+/// of 1148 ms), which says nothing about the appliance. The others may run together.
+static TIMING: RwLock<()> = RwLock::new(());
+
+fn shared_slot() -> RwLockReadGuard<'static, ()> {
+    TIMING.read().unwrap_or_else(|e| e.into_inner())
+}
+
 fn stop(mut child: std::process::Child) {
     let _ = child.kill();
     let _ = child.wait();
@@ -26,6 +36,7 @@ fn stop(mut child: std::process::Child) {
 
 #[test]
 fn a_slow_reload_while_lit_never_extends_a_showing() {
+    let _alone = TIMING.write().unwrap_or_else(|e| e.into_inner());
     let stage = Stage::new(ExampleSpec::small());
     let sock = stage.path("control.sock");
     // Showings of 400 ms (the configuration shortens the bundle's second).
@@ -74,9 +85,9 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
     // The timer ended the showing while the bundle was still being verified (verifying on
     // the event loop, as before, let the showing run for the whole verification). Later
     // stretches are the new bundle's idle scene (other frames).
-    // The slack is for a starved event loop: on a 2-core machine with the verification
-    // worker on one core and parallel tests on the other, the timer's end was seen 466 ms
-    // late (866 ms). Verifying on the loop would hold the showing for the whole verification.
+    // The slack is for a loop sharing a 2-core machine with the verification worker and
+    // the test harness (466 ms late seen while other tests ran beside it, before it ran
+    // alone). Verifying on the loop would hold the showing for the whole verification.
     assert!(stretches[0] <= 400.0 + 600.0 && stretches[0] < 500.0 * verify_s, "{stretches:?}");
     assert!(verify_s > 1.0, "the slow bundle verified in {verify_s:.2} s: the test shows nothing");
     let ledger =
@@ -96,6 +107,7 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
 
 #[test]
 fn a_lost_ledger_refuses_light_until_an_operator_acknowledges() {
+    let _slot = shared_slot();
     let stage = Stage::new(ExampleSpec::small());
     let sock = stage.path("control.sock");
     let config = stage.config("", "", &format!("control_socket = {sock:?}"));
@@ -146,6 +158,7 @@ fn a_lost_ledger_refuses_light_until_an_operator_acknowledges() {
 
 #[test]
 fn a_bundle_resigned_for_another_object_gets_no_fresh_budget() {
+    let _slot = shared_slot();
     let stage = Stage::new(ExampleSpec::small());
     let sock = stage.path("control.sock");
     let config = stage.config("", "", &format!("control_socket = {sock:?}"));
@@ -180,6 +193,7 @@ fn a_bundle_resigned_for_another_object_gets_no_fresh_budget() {
 
 #[test]
 fn a_restart_during_a_cooldown_keeps_it() {
+    let _slot = shared_slot();
     let stage = Stage::new(ExampleSpec::small());
     let sock = stage.path("control.sock");
     // The configured cooldown lengthens the bundle's (0 s) to a minute.

@@ -54,9 +54,9 @@ fn classify_cli_writes_labels_palette_and_preview_that_match_the_truth() {
     let acc = right as f64 / total as f64;
     // The virtual camera integrates each pixel over its area, so at 240x180 the bowl's thin
     // lines and edges are mostly mixed pixels, judged against their majority label: 0.926
-    // measured (0.98+ when pixels were point samples). Classification robust to mixed pixels
-    // is open work; this test guards the command's wiring and gross errors.
-    assert!(acc > 0.9, "accuracy {acc}");
+    // measured with the per-pixel rule alone, 0.96 with mixed edge pixels unmixed (and 0.99
+    // at 800x600: `restage-author eval classify`).
+    assert!(acc > 0.95, "accuracy {acc}");
     let counted: u64 = palette.classes.iter().map(|c| c.pixels).sum();
     assert_eq!(counted, total);
 }

@@ -51,11 +51,15 @@ pub struct ClassifyOptions {
     /// distance for every colour. 3 by default: with 12 picks per colour, 2 to 5 give the
     /// same accuracy on the virtual stage's scenes; far more loses the per-colour spread.
     pub prior_picks: f64,
+    /// Relabel mixed pixels at paint edges and the silhouette by linear unmixing of the
+    /// paints beside them ([`super::edges`]); on by default. Off: the paper's per-pixel rule
+    /// alone (`restage-author eval classify` reports both).
+    pub unmix_edges: bool,
 }
 
 impl Default for ClassifyOptions {
     fn default() -> Self {
-        Self { max_iterations: 1, prior_picks: DEFAULT_PRIOR_PICKS }
+        Self { max_iterations: 1, prior_picks: DEFAULT_PRIOR_PICKS, unmix_edges: true }
     }
 }
 
@@ -250,7 +254,15 @@ pub fn classify(
         init = reps_xyy.iter().map(|c| [0, 1, 2].map(|j| c[j] as f32 * sw[j])).collect();
     }
     let mut labels = initial_labels(photo.data.len(), mask)?;
-    let res = lloyd_metric(&features, &init, Some(&metrics), &mut labels, opts.max_iterations);
+    let mut res = lloyd_metric(&features, &init, Some(&metrics), &mut labels, opts.max_iterations);
+    if opts.unmix_edges {
+        let changed = super::edges::unmix_edges(photo, &mut labels, mask, k);
+        info!(changed, "relabelled mixed edge pixels");
+        res.counts = vec![0; k];
+        for &l in labels.iter().filter(|&&l| (l as usize) < k) {
+            res.counts[l as usize] += 1;
+        }
+    }
     let labels = LabelMap::from_vec(w, h, labels)?;
     let means = class_mean_rgb(photo, &labels, k);
     let classes = picks

@@ -6,6 +6,7 @@
 
 pub mod baseline;
 pub mod calibrated;
+pub mod edges;
 mod error;
 pub mod kmeans;
 mod palette;

@@ -73,7 +73,11 @@ impl std::fmt::Display for ClassifySummary {
 /// Runs the step as its arguments say.
 pub fn run(args: &ClassifyArgs, progress: &dyn Progress) -> Result<ClassifySummary> {
     super::check_out(&args.out, args.overwrite.force)?;
-    let opts = ClassifyOptions { max_iterations: args.max_iterations, prior_picks: args.prior_picks };
+    let opts = ClassifyOptions {
+        max_iterations: args.max_iterations,
+        prior_picks: args.prior_picks,
+        ..Default::default()
+    };
     classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, &opts, progress)
 }
 
