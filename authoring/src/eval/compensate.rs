@@ -434,20 +434,37 @@ mod whole_surface {
                     }
                 }
             }
-            let comp = compensate::compensate(&model, &pristine_target(&stage), &p).unwrap();
-            let peak = stage.surface_peak(&comp.frames).unwrap();
-            assert!(
-                peak.lux <= p.e_bound_lux,
-                "{} seed {seed} plinth {plinth}: true peak {:.1} lx at {:?} (projector {} pixel {:?}) > {} lx",
-                scene.name(),
-                peak.lux,
-                peak.point_mm,
-                peak.projector,
-                peak.projector_px,
-                p.e_bound_lux
-            );
-            // The bound does not darken the object: most of it is still lit.
-            assert!(comp.stats.covered_points > 1000, "{}", comp.stats.covered_points);
+            // With the meter exact and reading 10 % low (every projector's calibrated brightness
+            // 10 % low, so the frames come out brighter): the default meter accuracy covers it.
+            for reading in [1.0, 0.9] {
+                let mut model = model.clone();
+                for pr in &mut model.projectors {
+                    pr.lux_at_1m *= reading;
+                }
+                let comp = compensate::compensate(&model, &pristine_target(&stage), &p).unwrap();
+                let peak = stage.surface_peak(&comp.frames).unwrap();
+                eprintln!(
+                    "FIGURES {} seed {seed} plinth {plinth} meter reading {reading}: true peak over the surface \
+                     {:.1} lx, at camera pixels {:.1} lx, certificate {:.1} lx",
+                    scene.name(),
+                    peak.lux,
+                    true_peak(&stage, &comp.frames),
+                    comp.stats.peak_lux
+                );
+                assert!(
+                    peak.lux <= p.e_bound_lux,
+                    "{} seed {seed} plinth {plinth} reading {reading}: true peak {:.1} lx at {:?} (projector {} \
+                     pixel {:?}) > {} lx",
+                    scene.name(),
+                    peak.lux,
+                    peak.point_mm,
+                    peak.projector,
+                    peak.projector_px,
+                    p.e_bound_lux
+                );
+                // The bound does not darken the object: most of it is still lit.
+                assert!(comp.stats.covered_points > 1000, "{}", comp.stats.covered_points);
+            }
         }
     }
 }
