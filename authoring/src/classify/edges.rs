@@ -8,7 +8,6 @@
 //! and the background beyond the silhouette), in linear light where area integration is a
 //! plain mean, and the pixel takes the paint of the larger share.
 
-use super::MASKED;
 use crate::imgio::LinearImage;
 
 /// The window the neighbours' own colours are taken from (pixels each side of the centre).
@@ -136,6 +135,7 @@ fn mix(p: [f64; 3], m: [f64; 3], o: [f64; 3], min_share: f64) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::classify::MASKED;
 
     /// A vertical edge between two paints (rows 0-5), each pixel of the edge column covering
     /// `share` of the left paint, and below it (rows 6-9) a third paint, a faded red.

@@ -443,13 +443,21 @@ mod whole_surface {
                 }
                 let comp = compensate::compensate(&model, &pristine_target(&stage), &p).unwrap();
                 let peak = stage.surface_peak(&comp.frames).unwrap();
+                let at_pixels = true_peak(&stage, &comp.frames);
                 eprintln!(
                     "FIGURES {} seed {seed} plinth {plinth} meter reading {reading}: true peak over the surface \
                      {:.1} lx, at camera pixels {:.1} lx, certificate {:.1} lx",
                     scene.name(),
                     peak.lux,
-                    true_peak(&stage, &comp.frames),
+                    at_pixels,
                     comp.stats.peak_lux
+                );
+                // The whole surface includes every camera pixel's point: its peak is no lower
+                // (1 % for the camera pixels' box-filtered light against point samples).
+                assert!(
+                    peak.lux >= 0.99 * at_pixels,
+                    "surface {:.1} lx < pixels {at_pixels:.1} lx",
+                    peak.lux
                 );
                 assert!(
                     peak.lux <= p.e_bound_lux,
