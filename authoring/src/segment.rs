@@ -1016,38 +1016,34 @@ mod tests {
     #[test]
     fn the_virtual_vase_on_its_plinth_is_segmented() {
         use crate::stage_sim::{SceneConfig, SceneName, Seen, VirtualStage};
-        for seed in [1] {
-            let cfg = SceneConfig {
-                plinth: true,
-                camera: [320, 240],
-                projector: [256, 192],
-                ..SceneConfig::tiny(SceneName::Vase, seed)
-            };
-            let stage = VirtualStage::new(&cfg).unwrap();
-            let seg = propose(&stage.truth(), &SegmentParams::default()).unwrap();
-            let (mut object, mut dropped, mut plinth, mut kept) = (0, 0, 0, 0);
-            for (p, &m) in stage.pixels().iter().zip(&seg.mask) {
-                if p.is_object() {
-                    object += 1;
-                    dropped += usize::from(!m);
-                } else if p.seen == Seen::Plinth {
-                    plinth += 1;
-                    kept += usize::from(m);
-                }
+        let seed = 1;
+        let cfg = SceneConfig {
+            plinth: true,
+            camera: [320, 240],
+            projector: [256, 192],
+            ..SceneConfig::tiny(SceneName::Vase, seed)
+        };
+        let stage = VirtualStage::new(&cfg).unwrap();
+        let seg = propose(&stage.truth(), &SegmentParams::default()).unwrap();
+        let (mut object, mut dropped, mut plinth, mut kept) = (0, 0, 0, 0);
+        for (p, &m) in stage.pixels().iter().zip(&seg.mask) {
+            if p.is_object() {
+                object += 1;
+                dropped += usize::from(!m);
+            } else if p.seen == Seen::Plinth {
+                plinth += 1;
+                kept += usize::from(m);
             }
-            eprintln!(
-                "FIGURES seed {seed}: vase pixels {object}, dropped {dropped}; plinth pixels {plinth}, kept {kept}"
-            );
-            assert!(plinth > object / 4, "the plinth is in view: {plinth} of {object}");
-            assert!(
-                dropped as f64 <= 0.01 * object as f64,
-                "seed {seed}: {dropped} of {object} vase pixels dropped"
-            );
-            assert!(
-                kept as f64 <= 0.01 * plinth as f64,
-                "seed {seed}: {kept} of {plinth} plinth pixels kept"
-            );
         }
+        eprintln!(
+            "FIGURES seed {seed}: vase pixels {object}, dropped {dropped}; plinth pixels {plinth}, kept {kept}"
+        );
+        assert!(plinth > object / 4, "the plinth is in view: {plinth} of {object}");
+        assert!(
+            dropped as f64 <= 0.01 * object as f64,
+            "seed {seed}: {dropped} of {object} vase pixels dropped"
+        );
+        assert!(kept as f64 <= 0.01 * plinth as f64, "seed {seed}: {kept} of {plinth} plinth pixels kept");
     }
 
     fn propose_scene(s: &Scene) -> Segmentation {
