@@ -23,10 +23,18 @@ pub struct DecodeParams {
     /// `max(min_bit_margin, min_bit_margin_rel * (white - black))`.
     pub min_bit_margin: f32,
     pub min_bit_margin_rel: f32,
-    /// Pixels with more weak bits than this are not decoded. One weak bit is what a pixel on a
-    /// stripe boundary has (only one Gray bit changes between neighbouring codes), and reading it
-    /// either way gives one of the two neighbouring codes; more weak bits mean noise.
+    /// Pixels with more weak bits than this on an axis are not decoded. One weak bit is what a
+    /// pixel on a stripe boundary has (only one Gray bit changes between neighbouring codes),
+    /// and reading it either way gives one of the two neighbouring codes; more weak bits mean
+    /// noise. A pixel where a column boundary crosses a row boundary has one on each axis.
     pub max_weak_bits: u32,
+    /// A pixel decoded with a weak bit is kept only when each of its coordinates lies within
+    /// this (projector px) of the median of the confidently decoded pixels (no weak bit) in
+    /// the 5x5 window around it: a weak bit read the wrong way off a stripe boundary lands far
+    /// from its neighbours.
+    pub max_neighbour_disagreement: f32,
+    /// ... and when that window holds at least this many confidently decoded pixels.
+    pub min_confident_neighbours: usize,
     /// After phase unwrapping, pixels whose phase coordinate is further than this (projector px)
     /// from the Gray-code cell are rejected as inconsistent.
     pub max_phase_gray_disagreement: f32,
@@ -41,6 +49,10 @@ impl Default for DecodeParams {
             min_bit_margin: 0.002,
             min_bit_margin_rel: 0.03,
             max_weak_bits: 1,
+            // Measured on the real capture (docs/calibrate.md): 1.5 px and 6 of 24 neighbours
+            // keep the weak-bit pixels as consistent as the confident ones.
+            max_neighbour_disagreement: 1.5,
+            min_confident_neighbours: 6,
             max_phase_gray_disagreement: 1.5,
             use_phase: true,
         }
@@ -69,14 +81,25 @@ pub struct DecodeQuality {
     pub lit: usize,
     /// Pixels with both coordinates decoded.
     pub decoded: usize,
-    /// Lit pixels rejected for too many weak Gray bits.
+    /// Lit pixels not decoded, each counted once under the first check it failed, in this
+    /// order: too many weak Gray bits on an axis (`weak`), a code outside the projector on
+    /// either axis (`out_of_range`), a weak bit with neighbours that disagree
+    /// (`weak_inconsistent`), phase disagreeing with the Gray code (`phase_rejected`). So
+    /// `lit = decoded + weak + out_of_range + weak_inconsistent + phase_rejected`.
     pub weak: usize,
-    /// Lit pixels whose code lies outside the projector image.
     pub out_of_range: usize,
-    /// Lit pixels whose phase disagreed with the Gray code.
+    #[serde(default)]
+    pub weak_inconsistent: usize,
     pub phase_rejected: usize,
-    /// Decoded pixels that had one weak bit (stripe boundaries).
+    /// Decoded pixels that had a weak bit (stripe boundaries) on either axis ...
     pub one_weak_bit: usize,
+    /// ... of which on both axes (where a column and a row boundary cross).
+    #[serde(default)]
+    pub two_weak_bits: usize,
+    /// Fraction of decoded pixels further than [`CONSISTENCY_PX`] from the median of their
+    /// decoded 5x5 neighbours (see [`inconsistent_fraction`]); 0 in files written before it.
+    #[serde(default)]
+    pub inconsistent: f32,
     /// Phase steps used per axis (0 when Gray code only).
     pub phase_steps: u32,
     pub phase_period: u32,
@@ -362,33 +385,33 @@ fn invert_response(curve: &[f32], light: f32) -> f32 {
     ((k - 1) as f32 + t) / 255.0
 }
 
-struct AxisResult {
-    coord: Vec<f32>,
-    weak_rejected: usize,
-    out_of_range: usize,
-    phase_rejected: usize,
-    one_weak: usize,
-    phase: Option<(u32, u32)>,
+/// One axis's Gray code per pixel, before any pixel is accepted.
+struct AxisCodes {
+    /// Binary projector coordinate (may lie outside the projector).
+    code: Vec<u32>,
+    /// Weak bits per pixel.
+    weak: Vec<u32>,
+    /// Smallest bit margin relative to white - black.
+    min_margin: Vec<f32>,
 }
 
 /// Per-pixel references every axis decodes against.
 struct Reference<'a> {
     white: &'a [f32],
     black: &'a [f32],
-    lit: &'a [bool],
     /// Measured projector response for linearising phase images, if ramps were captured.
     response: Option<&'a [f32]>,
 }
 
-fn decode_axis(
+fn gray_codes(
     images: &dyn PatternImages,
     projector: u32,
     axis: Axis,
     extent: u32,
     reference: &Reference,
     params: &DecodeParams,
-) -> Result<(AxisResult, Vec<f32>), CalibrateError> {
-    let Reference { white, black, lit, response } = *reference;
+) -> Result<AxisCodes, CalibrateError> {
+    let Reference { white, black, .. } = *reference;
     let n = gray_bits(extent);
     let pixels = white.len();
     let mut code = vec![0u32; pixels];
@@ -415,82 +438,145 @@ fn decode_axis(
             },
         );
     }
-    let mut res = AxisResult {
-        coord: vec![f32::NAN; pixels],
-        weak_rejected: 0,
-        out_of_range: 0,
-        phase_rejected: 0,
-        one_weak: 0,
-        phase: None,
+    code.par_iter_mut().for_each(|c| *c = gray_to_binary(*c));
+    Ok(AxisCodes { code, weak, min_margin })
+}
+
+/// Refines one axis's whole-pixel coordinates with phase shift, if the capture has it for this
+/// axis. Pixels whose phase disagrees with the Gray code are set to NaN and marked in the
+/// returned mask. Returns the (period, steps) used.
+fn phase_refine(
+    images: &dyn PatternImages,
+    axis: Axis,
+    extent: u32,
+    reference: &Reference,
+    params: &DecodeParams,
+    coord: &mut [f32],
+    rejected: &mut [bool],
+) -> Result<Option<(u32, u32)>, CalibrateError> {
+    let Reference { white, black, response } = *reference;
+    let Some((period, steps)) = phase_sequence(&images.patterns(), axis) else {
+        return Ok(None);
     };
+    let pixels = white.len();
+    let mut s = vec![0.0f32; pixels];
+    let mut co = vec![0.0f32; pixels];
+    for step in 0..steps {
+        let img = images.grey(&Pattern::Phase { axis, period, step, steps })?.expect("checked complete");
+        let delta = std::f32::consts::TAU * step as f32 / steps as f32;
+        let (sd, cd) = delta.sin_cos();
+        s.par_iter_mut().zip(co.par_iter_mut()).enumerate().for_each(|(i, (s, c))| {
+            let range = (white[i] - black[i]).max(1e-6);
+            let rel = (img[i] - black[i]) / range;
+            // Undo the projector's non-linear response so the pattern is a sinusoid again.
+            let v = match response {
+                Some(curve) => invert_response(curve, rel),
+                None => rel,
+            };
+            *s += v * sd;
+            *c += v * cd;
+        });
+    }
+    let p = period as f32;
     for i in 0..pixels {
-        if !lit[i] {
+        let g = coord[i];
+        if !g.is_finite() {
             continue;
         }
-        if weak[i] > params.max_weak_bits {
-            res.weak_rejected += 1;
-            continue;
+        let phi = s[i].atan2(co[i]).rem_euclid(std::f32::consts::TAU);
+        let cp = p * phi / std::f32::consts::TAU;
+        let k = ((g - cp) / p).round();
+        let c = k * p + cp;
+        if (c - g).abs() > params.max_phase_gray_disagreement || c < -0.5 || c > extent as f32 - 0.5 {
+            coord[i] = f32::NAN;
+            rejected[i] = true;
+        } else {
+            coord[i] = c;
         }
-        let c = gray_to_binary(code[i]);
-        if c >= extent {
-            res.out_of_range += 1;
-            continue;
-        }
-        if weak[i] > 0 {
-            res.one_weak += 1;
-        }
-        res.coord[i] = c as f32;
     }
-    if params.use_phase
-        && let Some((period, steps)) = phase_sequence(&images.patterns(), axis)
-    {
-        {
-            res.phase = Some((period, steps));
-            let mut s = vec![0.0f32; pixels];
-            let mut co = vec![0.0f32; pixels];
-            for step in 0..steps {
-                let img =
-                    images.grey(&Pattern::Phase { axis, period, step, steps })?.expect("checked complete");
-                let delta = std::f32::consts::TAU * step as f32 / steps as f32;
-                let (sd, cd) = delta.sin_cos();
-                s.par_iter_mut().zip(co.par_iter_mut()).enumerate().for_each(|(i, (s, c))| {
-                    let range = (white[i] - black[i]).max(1e-6);
-                    let rel = (img[i] - black[i]) / range;
-                    // Undo the projector's non-linear response so the pattern is a sinusoid again.
-                    let v = match response {
-                        Some(curve) => invert_response(curve, rel),
-                        None => rel,
-                    };
-                    *s += v * sd;
-                    *c += v * cd;
-                });
-            }
-            let p = period as f32;
-            for i in 0..pixels {
-                let g = res.coord[i];
-                if !g.is_finite() {
-                    continue;
-                }
-                let phi = s[i].atan2(co[i]).rem_euclid(std::f32::consts::TAU);
-                let cp = p * phi / std::f32::consts::TAU;
-                let k = ((g - cp) / p).round();
-                let c = k * p + cp;
-                if (c - g).abs() > params.max_phase_gray_disagreement || c < -0.5 || c > extent as f32 - 0.5 {
-                    res.coord[i] = f32::NAN;
-                    res.phase_rejected += 1;
-                } else {
-                    res.coord[i] = c;
-                }
+    Ok(Some((period, steps)))
+}
+
+/// Side of the window the neighbourhood check and the consistency figure look at.
+const WINDOW: usize = 5;
+
+/// A decoded pixel counts as inconsistent with its neighbours when it lies further than this
+/// (projector px, on either axis) from the median of the decoded pixels around it.
+pub const CONSISTENCY_PX: f32 = 2.0;
+
+/// Median of x and of y over the pixels of the `WINDOW` x `WINDOW` window around pixel `i`
+/// (itself excluded) where both are finite, and how many there were. An even count takes the
+/// mean of the two middle values (as numpy's median does, so the peer script agrees).
+fn window_median(x: &[f32], y: &[f32], width: usize, height: usize, i: usize) -> Option<(f32, f32, usize)> {
+    let r = WINDOW / 2;
+    let (u, v) = (i % width, i / width);
+    let mut xs = [0.0f32; WINDOW * WINDOW];
+    let mut ys = [0.0f32; WINDOW * WINDOW];
+    let mut n = 0;
+    for vv in v.saturating_sub(r)..(v + r + 1).min(height) {
+        for uu in u.saturating_sub(r)..(u + r + 1).min(width) {
+            let j = vv * width + uu;
+            if j != i && x[j].is_finite() && y[j].is_finite() {
+                xs[n] = x[j];
+                ys[n] = y[j];
+                n += 1;
             }
         }
     }
-    Ok((res, min_margin))
+    if n == 0 {
+        return None;
+    }
+    let median = |a: &mut [f32]| {
+        a.sort_unstable_by(f32::total_cmp);
+        if a.len() % 2 == 1 { a[a.len() / 2] } else { 0.5 * (a[a.len() / 2 - 1] + a[a.len() / 2]) }
+    };
+    Some((median(&mut xs[..n]), median(&mut ys[..n]), n))
+}
+
+/// For every pixel, whether it is decoded (finite x and y) and further than [`CONSISTENCY_PX`]
+/// on either axis from the median of the decoded pixels in the 5x5 window around it; a decoded
+/// pixel with no decoded neighbour counts as inconsistent (nothing vouches for it).
+pub fn inconsistent_pixels(x: &[f32], y: &[f32], width: u32, height: u32) -> Vec<bool> {
+    let (w, h) = (width as usize, height as usize);
+    (0..x.len())
+        .into_par_iter()
+        .map(|i| {
+            x[i].is_finite()
+                && y[i].is_finite()
+                && window_median(x, y, w, h, i).is_none_or(|(mx, my, _)| {
+                    !((x[i] - mx).abs() <= CONSISTENCY_PX && (y[i] - my).abs() <= CONSISTENCY_PX)
+                })
+        })
+        .collect()
+}
+
+/// The share of decoded pixels that [`inconsistent_pixels`] marks; 0 when nothing decoded.
+pub fn inconsistent_fraction(x: &[f32], y: &[f32], width: u32, height: u32) -> f32 {
+    let decoded = x.iter().zip(y).filter(|(a, b)| a.is_finite() && b.is_finite()).count();
+    let bad = inconsistent_pixels(x, y, width, height).iter().filter(|&&b| b).count();
+    if decoded == 0 { 0.0 } else { bad as f32 / decoded as f32 }
+}
+
+/// Why a lit pixel was not decoded. Each pixel has one reason, the first that applies in this
+/// order (the order of the checks), so the counts in [`DecodeQuality`] add up.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Status {
+    Unlit,
+    /// More than `max_weak_bits` weak bits on an axis.
+    Weak,
+    /// A code outside the projector on either axis.
+    OutOfRange,
+    /// Decoded with a weak bit, but its neighbours disagree (or there are too few of them).
+    WeakInconsistent,
+    PhaseRejected,
+    Decoded,
 }
 
 /// Decodes one projector's structured light.
 ///
 /// Fails only when the input is unusable as a whole (missing or mis-sized images, no contrast
-/// at all); noisy pixels are left undecoded and counted in the quality report.
+/// at all, a zero projector size); noisy pixels are left undecoded and counted in the quality
+/// report.
 pub fn decode_projector(
     images: &dyn PatternImages,
     projector: u32,
@@ -498,6 +584,14 @@ pub fn decode_projector(
     projector_height: u32,
     params: &DecodeParams,
 ) -> Result<ProjectorDecode, CalibrateError> {
+    if projector_width == 0 || projector_height == 0 {
+        return Err(CalibrateError::BadInput {
+            path: PathBuf::new(),
+            problem: format!(
+                "projector {projector}: size {projector_width}x{projector_height} has a zero side"
+            ),
+        });
+    }
     let (width, height) = images.size();
     let pixels = width as usize * height as usize;
     let need = |pattern: Pattern| {
@@ -522,46 +616,111 @@ pub fn decode_projector(
     let reference = Reference {
         white: &white,
         black: &black,
-        lit: &lit,
         response: if params.use_phase { response.as_deref() } else { None },
     };
-    let (xr, mx) = decode_axis(images, projector, Axis::X, projector_width, &reference, params)?;
-    let (yr, my) = decode_axis(images, projector, Axis::Y, projector_height, &reference, params)?;
-    let mut x = xr.coord;
-    let mut y = yr.coord;
-    let mut margins = Vec::new();
-    let mut decoded = 0;
+    let cx = gray_codes(images, projector, Axis::X, projector_width, &reference, params)?;
+    let cy = gray_codes(images, projector, Axis::Y, projector_height, &reference, params)?;
+
+    // Weak before out of range: a code read through too many weak bits is noise, and where it
+    // lands says nothing about the projector size.
+    let mut status: Vec<Status> = (0..pixels)
+        .map(|i| {
+            if !lit[i] {
+                Status::Unlit
+            } else if cx.weak[i] > params.max_weak_bits || cy.weak[i] > params.max_weak_bits {
+                Status::Weak
+            } else if cx.code[i] >= projector_width || cy.code[i] >= projector_height {
+                Status::OutOfRange
+            } else {
+                Status::Decoded
+            }
+        })
+        .collect();
+
+    // Pixels with no weak bit are the reference the weak-bit pixels are checked against.
+    let confident = |i: usize| status[i] == Status::Decoded && cx.weak[i] == 0 && cy.weak[i] == 0;
+    let (mut x, mut y): (Vec<f32>, Vec<f32>) = (0..pixels)
+        .map(|i| if confident(i) { (cx.code[i] as f32, cy.code[i] as f32) } else { (f32::NAN, f32::NAN) })
+        .unzip();
+    // A weak bit is read either way; at a stripe boundary both readings are neighbouring codes,
+    // elsewhere a wrong reading lands far from its neighbours. Reads only the confident map, so
+    // the result does not depend on the order (or threads) pixels are visited in.
+    let (w, h) = (width as usize, height as usize);
+    let disagreeing: Vec<usize> = (0..pixels)
+        .into_par_iter()
+        .filter(|&i| status[i] == Status::Decoded && (cx.weak[i] > 0 || cy.weak[i] > 0))
+        .filter(|&i| {
+            window_median(&x, &y, w, h, i).is_none_or(|(mx, my, n)| {
+                n < params.min_confident_neighbours
+                    || (cx.code[i] as f32 - mx).abs() > params.max_neighbour_disagreement
+                    || (cy.code[i] as f32 - my).abs() > params.max_neighbour_disagreement
+            })
+        })
+        .collect();
+    for i in disagreeing {
+        status[i] = Status::WeakInconsistent;
+    }
     for i in 0..pixels {
-        if x[i].is_finite() && y[i].is_finite() {
-            decoded += 1;
-            margins.push(mx[i].min(my[i]));
+        if status[i] == Status::Decoded {
+            x[i] = cx.code[i] as f32;
+            y[i] = cy.code[i] as f32;
+        }
+    }
+
+    let mut phase = None;
+    if params.use_phase {
+        let mut rejected = vec![false; pixels];
+        let px = phase_refine(images, Axis::X, projector_width, &reference, params, &mut x, &mut rejected)?;
+        let py = phase_refine(images, Axis::Y, projector_height, &reference, params, &mut y, &mut rejected)?;
+        phase = px.or(py);
+        for i in 0..pixels {
+            if rejected[i] {
+                status[i] = Status::PhaseRejected;
+            }
+        }
+    }
+
+    let count = |s: Status| status.iter().filter(|&&t| t == s).count();
+    let mut margins = Vec::new();
+    let (mut one_weak_bit, mut two_weak_bits) = (0, 0);
+    for i in 0..pixels {
+        if status[i] == Status::Decoded {
+            margins.push(cx.min_margin[i].min(cy.min_margin[i]));
+            one_weak_bit += usize::from(cx.weak[i] > 0 || cy.weak[i] > 0);
+            two_weak_bits += usize::from(cx.weak[i] > 0 && cy.weak[i] > 0);
         } else {
             x[i] = f32::NAN;
             y[i] = f32::NAN;
         }
     }
+    let decoded = margins.len();
     let median_relative_margin = if margins.is_empty() {
         0.0
     } else {
         let mid = margins.len() / 2;
         *margins.select_nth_unstable_by(mid, f32::total_cmp).1
     };
-    let phase = xr.phase.or(yr.phase);
     let mut quality = DecodeQuality {
         projector,
         pixels,
         lit: lit_count,
         decoded,
-        weak: xr.weak_rejected + yr.weak_rejected,
-        out_of_range: xr.out_of_range + yr.out_of_range,
-        phase_rejected: xr.phase_rejected + yr.phase_rejected,
-        one_weak_bit: xr.one_weak + yr.one_weak,
+        weak: count(Status::Weak),
+        out_of_range: count(Status::OutOfRange),
+        weak_inconsistent: count(Status::WeakInconsistent),
+        phase_rejected: count(Status::PhaseRejected),
+        one_weak_bit,
+        two_weak_bits,
+        inconsistent: inconsistent_fraction(&x, &y, width, height),
         phase_steps: phase.map_or(0, |p| p.1),
         phase_period: phase.map_or(0, |p| p.0),
         linearised: response.is_some() && phase.is_some(),
         median_relative_margin,
         warnings: Vec::new(),
     };
+    if let Some(w) = out_of_range_warning(projector, &cx, &cy, &status, projector_width, projector_height) {
+        quality.warnings.push(w);
+    }
     if decoded < lit_count / 2 {
         quality.warnings.push(format!(
             "projector {projector}: only {decoded} of {lit_count} lit pixels decoded (noise, blur or a wrong pattern order?)"
@@ -585,6 +744,44 @@ pub fn decode_projector(
         ));
     }
     Ok(ProjectorDecode { width, height, x, y, contrast, response, quality })
+}
+
+/// Share of the lit pixels past the weak-bit test that may decode out of range before the
+/// projector size is suspect (a few do at the image's edges through blur and noise).
+const OUT_OF_RANGE_WARN: f64 = 0.05;
+
+/// A warning when many codes fall outside the projector: the size given is probably wrong,
+/// most often transposed. Says so when the swapped size would fit (nearly) all of them.
+fn out_of_range_warning(
+    projector: u32,
+    cx: &AxisCodes,
+    cy: &AxisCodes,
+    status: &[Status],
+    pw: u32,
+    ph: u32,
+) -> Option<String> {
+    let readable: Vec<usize> =
+        (0..status.len()).filter(|&i| !matches!(status[i], Status::Unlit | Status::Weak)).collect();
+    let out = readable.iter().filter(|&&i| status[i] == Status::OutOfRange).count();
+    if readable.is_empty() || (out as f64) <= OUT_OF_RANGE_WARN * readable.len() as f64 {
+        return None;
+    }
+    let pct = 100.0 * out as f64 / readable.len() as f64;
+    let mut msg = format!(
+        "projector {projector}: {out} of {} readable pixels ({pct:.1} %) decode outside the {pw}x{ph} projector; \
+         is the size right, or transposed ({ph}x{pw})?",
+        readable.len()
+    );
+    // The codes only mean the same under the swapped size when each axis has as many bits.
+    if gray_bits(pw) == gray_bits(ph) {
+        let swapped_out = readable.iter().filter(|&&i| cx.code[i] >= ph || cy.code[i] >= pw).count();
+        if (swapped_out as f64) < 0.01 * readable.len() as f64 {
+            msg.push_str(&format!(
+                " With {ph}x{pw} only {swapped_out} would be out of range: the size looks transposed."
+            ));
+        }
+    }
+    Some(msg)
 }
 
 /// Pattern images held in memory (tests, benches, the virtual stage in-process).
@@ -844,6 +1041,150 @@ mod tests {
         assert_eq!(cap.shots[41].pattern, Pattern::Black);
         let err = opencv_order(&files[..41], 1024, 768).unwrap_err();
         assert!(err.to_string().contains("expected exactly 42"), "{err}");
+    }
+
+    /// Makes bit `bit` of `axis` weak at camera pixel `i` (pattern and inverse nearly equal),
+    /// read as `reads_one`.
+    fn weaken(imgs: &mut MemoryImages, i: usize, axis: Axis, bit: u32, reads_one: bool) {
+        let s = if reads_one { 0.001 } else { -0.001 };
+        for (p, img) in &mut imgs.images {
+            if let Pattern::GrayCode { axis: a, bit: b, inverted } = *p
+                && a == axis
+                && b == bit
+            {
+                img[i] = 0.3 + if inverted { -s } else { s };
+            }
+        }
+    }
+
+    /// Whether Gray bit `bit` (MSB first) of coordinate `c` is one on a `extent`-wide axis.
+    fn gray_bit(c: u32, bit: u32, extent: u32) -> bool {
+        let g = c ^ (c >> 1);
+        (g >> (gray_bits(extent) - 1 - bit)) & 1 == 1
+    }
+
+    fn lit_adds_up(q: &DecodeQuality) {
+        assert_eq!(
+            q.lit,
+            q.decoded + q.weak + q.out_of_range + q.weak_inconsistent + q.phase_rejected,
+            "{q:?}"
+        );
+    }
+
+    #[test]
+    fn a_weak_bit_is_kept_only_where_the_neighbours_agree() {
+        let pats = standard_patterns(64, 48, 8, 0);
+        let mut imgs = render((120, 100), (64, 48), &affine, &pats, 1.0, 0.0, 6);
+        let clean = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        assert_eq!((clean.quality.one_weak_bit, clean.quality.weak_inconsistent), (0, 0));
+        let at = |u: u32, v: u32| (v * 120 + u) as usize;
+        // Pixel A: its most significant x bit read the wrong way, which reflects x about the
+        // middle (c -> 63 - c): 12 columns off its neighbours here.
+        let a = at(60, 50);
+        let ax = clean.x[a] as u32;
+        weaken(&mut imgs, a, Axis::X, 0, !gray_bit(ax, 0, 64));
+        // Pixel B: a weak least significant x bit read the right way (a stripe boundary) ...
+        let b = at(30, 30);
+        weaken(&mut imgs, b, Axis::X, 5, gray_bit(clean.x[b] as u32, 5, 64));
+        // ... and pixel C: one weak bit on each axis, both read the right way (a corner).
+        let c = at(90, 70);
+        weaken(&mut imgs, c, Axis::X, 5, gray_bit(clean.x[c] as u32, 5, 64));
+        weaken(&mut imgs, c, Axis::Y, 5, gray_bit(clean.y[c] as u32, 5, 48));
+        let d = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        let q = &d.quality;
+        assert!(!d.is_valid(a), "the wrong reading {} was kept (true {ax})", d.x[a]);
+        assert_eq!((d.x[b], d.y[b]), (clean.x[b], clean.y[b]));
+        assert_eq!((d.x[c], d.y[c]), (clean.x[c], clean.y[c]));
+        assert_eq!((q.weak_inconsistent, q.one_weak_bit, q.two_weak_bits), (1, 2, 1), "{q:?}");
+        assert_eq!(q.decoded, clean.quality.decoded - 1);
+        lit_adds_up(q);
+        assert_eq!(q.inconsistent, 0.0, "{q:?}");
+        // Without the check, the wrong reading stays and is the one inconsistent pixel.
+        let params = DecodeParams { max_neighbour_disagreement: f32::INFINITY, ..DecodeParams::default() };
+        let loose = decode_projector(&imgs, 0, 64, 48, &params).unwrap();
+        assert!(loose.is_valid(a) && (loose.x[a] - ax as f32).abs() >= 10.0, "{} vs {ax}", loose.x[a]);
+        assert!(
+            (loose.quality.inconsistent * loose.quality.decoded as f32 - 1.0).abs() < 1e-3,
+            "{:?}",
+            loose.quality
+        );
+    }
+
+    #[test]
+    fn the_check_does_not_depend_on_the_thread_count() {
+        let pats = standard_patterns(64, 48, 8, 0);
+        // Noise this strong makes bits weak, and some read the wrong way.
+        let imgs = render((120, 100), (64, 48), &affine, &pats, 1.0, 0.2, 7);
+        let d = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        assert!(d.quality.one_weak_bit > 0 && d.quality.weak_inconsistent > 0, "{:?}", d.quality);
+        let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        let d1 = one.install(|| decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap());
+        assert_eq!(d1.quality, d.quality);
+        let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(p, q)| p.to_bits() == q.to_bits());
+        assert!(same(&d.x, &d1.x) && same(&d.y, &d1.y));
+    }
+
+    #[test]
+    fn a_pixel_rejected_on_both_axes_counts_once() {
+        let pats = standard_patterns(64, 48, 8, 0);
+        let mut imgs = render((120, 100), (64, 48), &affine, &pats, 1.0, 0.0, 8);
+        let clean = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        let i = 50 * 120 + 60;
+        // Two weak bits on each axis, read so that y is out of range too (Gray 10.... is 48..63).
+        for axis in [Axis::X, Axis::Y] {
+            weaken(&mut imgs, i, axis, 0, true);
+            weaken(&mut imgs, i, axis, 1, false);
+        }
+        let d = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        let q = &d.quality;
+        assert_eq!((q.weak, q.out_of_range, q.weak_inconsistent), (1, 0, 0), "{q:?}");
+        assert_eq!(q.decoded, clean.quality.decoded - 1);
+        lit_adds_up(q);
+    }
+
+    #[test]
+    fn a_transposed_projector_size_is_a_warning_and_zero_an_error() {
+        let pats = standard_patterns(64, 48, 8, 0);
+        let fill = |u: u32, v: u32| Some((u as f64 * 63.0 / 119.0, v as f64 * 47.0 / 99.0));
+        let imgs = render((120, 100), (64, 48), &fill, &pats, 1.0, 0.001, 9);
+        let right = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        assert!(!right.quality.warnings.iter().any(|w| w.contains("outside")), "{:?}", right.quality);
+        // 64 and 48 both take 6 bits, so the images are the same for either size.
+        let swapped = decode_projector(&imgs, 0, 48, 64, &DecodeParams::default()).unwrap();
+        let q = &swapped.quality;
+        assert!(q.out_of_range > q.lit / 5, "{q:?}");
+        lit_adds_up(q);
+        let w = q.warnings.iter().find(|w| w.contains("outside the 48x64 projector")).expect("warned");
+        assert!(w.contains("64x48") && w.contains("looks transposed"), "{w}");
+        for (pw, ph) in [(0, 0), (64, 0)] {
+            let err = decode_projector(&imgs, 3, pw, ph, &DecodeParams::default()).unwrap_err();
+            assert!(err.to_string().contains(&format!("{pw}x{ph} has a zero side")), "{err}");
+        }
+    }
+
+    #[test]
+    fn consistency_counts_outliers_and_loners() {
+        // A 6x6 smooth map with one outlier and one decoded pixel whose neighbours are not.
+        let (mut x, mut y): (Vec<f32>, Vec<f32>) =
+            (0..36).map(|i| ((i % 6) as f32 * 0.8, (i / 6) as f32 * 0.8)).unzip();
+        x[14] += 5.0;
+        let mask = inconsistent_pixels(&x, &y, 6, 6);
+        assert_eq!(mask.iter().filter(|&&b| b).count(), 1);
+        assert!(mask[14]);
+        let mut lone = vec![f32::NAN; 36];
+        lone[0] = 1.0;
+        assert_eq!(inconsistent_fraction(&lone, &lone, 6, 6), 1.0);
+        y.iter_mut().for_each(|v| *v = f32::NAN);
+        assert_eq!(inconsistent_fraction(&x, &y, 6, 6), 0.0);
+    }
+
+    #[test]
+    fn decode_json_from_before_the_consistency_figure_still_loads() {
+        let old = r#"{"projector":0,"pixels":10,"lit":9,"decoded":8,"weak":1,"out_of_range":0,
+            "phase_rejected":0,"one_weak_bit":2,"phase_steps":0,"phase_period":0,"linearised":false,
+            "median_relative_margin":null,"warnings":[]}"#;
+        let q: DecodeQuality = serde_json::from_str(old).unwrap();
+        assert_eq!((q.decoded, q.weak_inconsistent, q.two_weak_bits, q.inconsistent), (8, 0, 0, 0.0));
     }
 
     proptest! {

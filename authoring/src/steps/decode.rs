@@ -8,7 +8,7 @@ use clap::Args;
 use restage_authoring::calibrate::CalibrateError;
 use restage_authoring::calibrate::decode::{self, CaptureImages, DecodeParams, DecodeQuality};
 use restage_authoring::calibrate::selfcal::{self, ProjectorObservations, SelfCalParams};
-use restage_authoring::capture_set::{CameraIntrinsics, CaptureManifest};
+use restage_authoring::capture_set::{CameraIntrinsics, CaptureManifest, MANIFEST_FILE};
 
 use super::Progress;
 
@@ -54,7 +54,11 @@ fn parse_intrinsics(s: &str) -> Result<[f64; 4], String> {
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s.split_once('x').ok_or_else(|| format!("'{s}' is not WIDTHxHEIGHT"))?;
     let p = |v: &str| v.trim().parse::<u32>().map_err(|_| format!("'{s}' is not WIDTHxHEIGHT"));
-    Ok((p(w)?, p(h)?))
+    let (w, h) = (p(w)?, p(h)?);
+    if w == 0 || h == 0 {
+        return Err(format!("'{s}' has a zero side (a projector is at least 1x1 pixels)"));
+    }
+    Ok((w, h))
 }
 
 /// Runs the step as its arguments say; returns each projector's decode quality (also written
@@ -94,6 +98,14 @@ pub fn run(args: &DecodeArgs, progress: &dyn Progress) -> Result<Vec<DecodeQuali
         }
         qualities.push(d.quality);
     } else {
+        // A folder of images from another tool is the likely mistake here; say how to read it.
+        if !args.capture.join(MANIFEST_FILE).exists() {
+            bail!(
+                "{} has no {MANIFEST_FILE}, so it is not a restage capture set; if it holds a Gray-code \
+                 sequence in OpenCV GrayCodePattern order, add --opencv-order --projector-size WIDTHxHEIGHT",
+                args.capture.display()
+            );
+        }
         let manifest = CaptureManifest::load(&args.capture)?;
         progress.stage("decoding");
         let total = manifest.projectors.len() as u64;
@@ -116,13 +128,16 @@ pub fn run(args: &DecodeArgs, progress: &dyn Progress) -> Result<Vec<DecodeQuali
             tracing::warn!("{w}");
         }
         tracing::info!(
-            "projector {}: {} of {} pixels decoded ({} lit, {} weak, {} out of range, {} phase-rejected)",
+            "projector {}: {} of {} pixels decoded, {:.3} % inconsistent with their neighbours \
+             ({} lit, {} weak, {} out of range, {} weak and inconsistent, {} phase-rejected)",
             q.projector,
             q.decoded,
             q.pixels,
+            100.0 * q.inconsistent,
             q.lit,
             q.weak,
             q.out_of_range,
+            q.weak_inconsistent,
             q.phase_rejected
         );
     }
