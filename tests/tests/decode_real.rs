@@ -13,13 +13,20 @@ use std::process::Command;
 use restage_authoring::calibrate::decode::{self, DecodeQuality, MAP_SCALE};
 use restage_tests::author_bin;
 
-/// The real capture's folder: `RESTAGE_REAL_DATA` or the workspace's sibling `shared/data/real`.
+/// The real capture's folder: `RESTAGE_REAL_DATA` or the workspace's sibling `shared/data/real`
+/// (None, said on stderr, where it is missing).
 fn pose(name: &str) -> Option<PathBuf> {
     let root = std::env::var_os("RESTAGE_REAL_DATA")
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/real"));
     let dir = root.join("procam-graycode-plane").join(name);
-    dir.join("graycode_41.png").exists().then_some(dir)
+    let found = dir.join("graycode_41.png").exists().then_some(dir);
+    if found.is_none() {
+        eprintln!(
+            "SKIPPED: no real capture (set RESTAGE_REAL_DATA to the folder holding procam-graycode-plane)"
+        );
+    }
+    found
 }
 
 fn decode_cli(capture: &Path, out: &Path, extra: &[&str]) -> (DecodeQuality, Vec<f32>, Vec<f32>) {
@@ -42,12 +49,7 @@ fn decode_cli(capture: &Path, out: &Path, extra: &[&str]) -> (DecodeQuality, Vec
 
 #[test]
 fn extra_pixels_on_a_real_capture_are_as_consistent_as_the_common_ones() {
-    let Some(capture) = pose("capture") else {
-        eprintln!(
-            "SKIPPED: no real capture (set RESTAGE_REAL_DATA to the folder holding procam-graycode-plane)"
-        );
-        return;
-    };
+    let Some(capture) = pose("capture") else { return };
     let dir = tempfile::tempdir().unwrap();
     let (strict, sx, _) = decode_cli(&capture, &dir.path().join("strict"), &["--strict"]);
     let (q, x, y) = decode_cli(&capture, &dir.path().join("default"), &[]);
@@ -74,12 +76,7 @@ fn extra_pixels_on_a_real_capture_are_as_consistent_as_the_common_ones() {
 
 #[test]
 fn mistaken_inputs_get_messages_that_say_what_to_do() {
-    let Some(capture) = pose("capture") else {
-        eprintln!(
-            "SKIPPED: no real capture (set RESTAGE_REAL_DATA to the folder holding procam-graycode-plane)"
-        );
-        return;
-    };
+    let Some(capture) = pose("capture") else { return };
     let dir = tempfile::tempdir().unwrap();
     let run = |args: &[&str]| {
         let out = Command::new(author_bin()).arg("decode").arg(&capture).args(args).output().unwrap();
