@@ -45,9 +45,10 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
         "",
         &format!("control_socket = {sock:?}"),
     );
-    // A newer bundle of the same object that takes seconds to verify (many large scenes).
+    // A newer bundle of the same object that takes seconds to verify (many large scenes): 40
+    // scenes verified in 0.97 s on an idle 2-core machine, under the 1 s this test needs.
     let slow_spec =
-        ExampleSpec { scenes: 40, width: 1280, height: 960, step: 2, version: 4, ..ExampleSpec::small() };
+        ExampleSpec { scenes: 60, width: 1280, height: 960, step: 2, version: 4, ..ExampleSpec::small() };
     let slow = stage.path("slow.bundle");
     stage.write_bundle(&slow_spec, OBJECT, &slow);
     let t = Instant::now();
