@@ -38,7 +38,7 @@ pub const MAX_CLASSES: usize = 254;
 /// Two representatives closer than this in (x, y, Y / y_scale) are the same colour.
 pub const MIN_SEPARATION: f64 = 1e-3;
 
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct ClassifyOptions {
     /// Cap on k-means iterations. The default, 1, assigns each pixel to the nearest
     /// representative under the calibrated distance and stops: on the virtual stage's
@@ -55,11 +55,17 @@ pub struct ClassifyOptions {
     /// paints beside them ([`super::edges`]); on by default. Off: the paper's per-pixel rule
     /// alone (`restage-author eval classify` reports both).
     pub unmix_edges: bool,
+    /// The loss classes (bare substrate that chips and cracks expose, the restoration's
+    /// `loss_classes`), by index into the picks. A crack is a groove one or two pixels wide:
+    /// its substrate is in shadow and has no pure pixel to take its colour from, so edge
+    /// unmixing also tries each loss class at its open-chip colour darkened down to 0.4x.
+    /// Empty: no class is treated so.
+    pub loss: Vec<u8>,
 }
 
 impl Default for ClassifyOptions {
     fn default() -> Self {
-        Self { max_iterations: 1, prior_picks: DEFAULT_PRIOR_PICKS, unmix_edges: true }
+        Self { max_iterations: 1, prior_picks: DEFAULT_PRIOR_PICKS, unmix_edges: true, loss: Vec::new() }
     }
 }
 
@@ -198,6 +204,12 @@ pub fn classify(
     if !(2..=MAX_CLASSES).contains(&k) {
         return Err(ClassifyError::ClassCount { count: k, max: MAX_CLASSES });
     }
+    if let Some(&c) = opts.loss.iter().find(|&&c| c as usize >= k) {
+        return Err(ClassifyError::Option {
+            name: "loss",
+            problem: format!("class {c} (the picks name {k} classes, 0 to {})", k - 1),
+        });
+    }
     if let Some(m) = mask
         && m.len() != photo.data.len()
     {
@@ -256,7 +268,7 @@ pub fn classify(
     let mut labels = initial_labels(photo.data.len(), mask)?;
     let mut res = lloyd_metric(&features, &init, Some(&metrics), &mut labels, opts.max_iterations);
     if opts.unmix_edges {
-        let changed = super::edges::unmix_edges(photo, &mut labels, mask, k);
+        let changed = super::edges::unmix_edges(photo, &mut labels, mask, k, &opts.loss);
         info!(changed, "relabelled mixed edge pixels");
         res.counts = vec![0; k];
         for &l in labels.iter().filter(|&&l| (l as usize) < k) {

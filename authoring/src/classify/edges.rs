@@ -7,11 +7,27 @@
 //! colour is explained as `a·m_j + (1-a)·m_k` of two paints seen next to it (or of a paint
 //! and the background beyond the silhouette), in linear light where area integration is a
 //! plain mean, and the pixel takes the paint of the larger share.
+//!
+//! Cracks: a crack is a groove one or two pixels wide that shows the substrate (a loss class,
+//! bare clay) in shadow, darker than in the open chips the substrate's colour is learnt from,
+//! so the nearest-colour rule calls it dark paint. Where the loss classes are named, each
+//! edge pixel is also explained with a loss class darkened (0.9x to 0.4x of its chips'
+//! colour) mixed with a paint around; that explanation, which has one more freedom, is taken
+//! only where the plain one is worse than the median edge pixel's and the darkened one at
+//! least [`CRACK_EVIDENCE`] times better, and only where every paint around has a pure pixel
+//! somewhere to measure its colour (at low resolution a thin paint line has none, its mean
+//! is a mixture, and a darkened substrate would explain three-paint mixtures it cannot).
 
 use crate::imgio::LinearImage;
 
 /// The window the neighbours' own colours are taken from (pixels each side of the centre).
 const REACH: i64 = 2;
+
+/// How dark bare substrate may look in a crack, as a fraction of its colour in open chips.
+const CRACK_SHADE: [f64; 5] = [0.9, 0.8, 0.65, 0.5, 0.4];
+
+/// How many times smaller the residual of a darkened-substrate explanation must be.
+const CRACK_EVIDENCE: f64 = 2.0;
 
 /// Relabels the edge pixels of `labels` (pixels whose 3x3 neighbourhood holds another class
 /// or a pixel off `mask`) in place; returns how many changed. Pure pixels (their whole 3x3
@@ -19,7 +35,13 @@ const REACH: i64 = 2;
 /// colour is the mean of its pure pixels within 2 px (the shading there), else that paint's
 /// mean over the whole photo (a thin line has no pure pixel). The result does not depend on
 /// the order pixels are visited in: every decision reads the labels as they were.
-pub fn unmix_edges(photo: &LinearImage, labels: &mut [u8], mask: Option<&[bool]>, k: usize) -> usize {
+pub fn unmix_edges(
+    photo: &LinearImage,
+    labels: &mut [u8],
+    mask: Option<&[bool]>,
+    k: usize,
+    loss: &[u8],
+) -> usize {
     let (w, h) = (photo.width as i64, photo.height as i64);
     let n = labels.len();
     debug_assert_eq!(n, photo.data.len());
@@ -43,6 +65,8 @@ pub fn unmix_edges(photo: &LinearImage, labels: &mut [u8], mask: Option<&[bool]>
     for i in (0..n).filter(|&i| object(i) && pure[i]) {
         add(&mut global[labels[i] as usize], photo.data[i]);
     }
+    // Classes whose colour is measured on pure pixels (before the fallback below).
+    let seen_pure: Vec<bool> = global.iter().map(|g| g[3] > 0.0).collect();
     // A class without a pure pixel anywhere (a one-pixel line): the mean of all its pixels.
     for (c, g) in global.iter_mut().enumerate() {
         if g[3] == 0.0 {
@@ -53,7 +77,7 @@ pub fn unmix_edges(photo: &LinearImage, labels: &mut [u8], mask: Option<&[bool]>
     }
 
     let mut out = labels.to_vec();
-    let mut changed = 0;
+    let mut decided: Vec<(usize, [(f64, u8); 2])> = Vec::new();
     for i in (0..n).filter(|&i| object(i) && !pure[i]) {
         let (x, y) = ((i as i64) % w, (i as i64) / w);
         // Candidate paints: the classes next to the pixel and those pure within reach.
@@ -78,31 +102,61 @@ pub fn unmix_edges(photo: &LinearImage, labels: &mut [u8], mask: Option<&[bool]>
             }
         }
         let touches_background = neighbours(x, y, 1).any(|(u, v)| background(at(u, v)));
-        let colours: Vec<(usize, [f64; 3])> = (0..k)
+        // (class, colour, darkened substrate in a crack)
+        let mut colours: Vec<(usize, [f64; 3], bool)> = (0..k)
             .filter(|&c| candidate[c])
-            .filter_map(|c| mean(&local[c]).or_else(|| mean(&global[c])).map(|m| (c, m)))
+            .filter_map(|c| mean(&local[c]).or_else(|| mean(&global[c])).map(|m| (c, m, false)))
             .collect();
+        // Only where every paint around has its colour measured (a paint seen only in mixed
+        // pixels has a mean that explains nothing well, and a darkened substrate would).
+        let measured = colours.iter().all(|&(c, _, _)| seen_pure[c]);
+        for c in loss.iter().map(|&c| c as usize).filter(|&c| c < k && measured && seen_pure[c]) {
+            if mean(&local[c]).is_none()
+                && let Some(m) = mean(&global[c])
+            {
+                colours.extend(CRACK_SHADE.iter().map(|&s| (c, m.map(|v| v * s), true)));
+            }
+        }
         let behind = touches_background.then(|| mean(&bg).or_else(|| mean(&bg_any))).flatten();
         let px = photo.data[i].map(f64::from);
-        let mut best = (f64::INFINITY, labels[i]);
-        for (a, &(cj, mj)) in colours.iter().enumerate() {
-            for &(ck, mk) in &colours[a..] {
+        // Best explanation with paints as seen around, and with a darkened substrate.
+        let mut best = [(f64::INFINITY, labels[i]); 2];
+        for (a, &(cj, mj, dj)) in colours.iter().enumerate() {
+            for &(ck, mk, dk) in &colours[a..] {
                 let (share, r) = mix(px, mj, mk, 0.0);
                 let label = if share >= 0.5 { cj } else { ck };
-                if r < best.0 {
-                    best = (r, label as u8);
+                let b = &mut best[usize::from(dj || dk)];
+                if r < b.0 {
+                    *b = (r, label as u8);
                 }
             }
             // Most of a pixel that counts as object is on it: the paint's share is >= 1/2.
             if let Some(mb) = behind {
                 let (_, r) = mix(px, mj, mb, 0.5);
-                if r < best.0 {
-                    best = (r, cj as u8);
+                let b = &mut best[usize::from(dj)];
+                if r < b.0 {
+                    *b = (r, cj as u8);
                 }
             }
         }
-        if best.1 != labels[i] {
-            out[i] = best.1;
+        // A crack takes the extra freedom of a shade: it must explain the pixel clearly better.
+        decided.push((i, best));
+    }
+    // A crack takes the extra freedom of a shade only where the paints around leave the pixel
+    // unexplained (worse than the median edge pixel: noise and texture) and the darkened
+    // substrate explains it clearly better.
+    let mut plain: Vec<f64> = decided.iter().map(|d| d.1[0].0).filter(|r| r.is_finite()).collect();
+    let floor = if plain.is_empty() {
+        0.0
+    } else {
+        let m = plain.len() / 2;
+        *plain.select_nth_unstable_by(m, f64::total_cmp).1
+    };
+    let mut changed = 0;
+    for (i, [p, d]) in decided {
+        let label = if p.0 > floor && d.0 * CRACK_EVIDENCE < p.0 { d.1 } else { p.1 };
+        if label != labels[i] {
+            out[i] = label;
             changed += 1;
         }
     }
@@ -169,7 +223,7 @@ mod tests {
             // The nearest-colour rule put the edge column in the faded red.
             let mut labels: Vec<u8> =
                 truth.iter().enumerate().map(|(i, &t)| if i % 8 == 4 && i < 48 { 2 } else { t }).collect();
-            unmix_edges(&img, &mut labels, None, 3);
+            unmix_edges(&img, &mut labels, None, 3, &[]);
             for y in 0..5 {
                 assert_eq!(labels[y * 8..y * 8 + 8], truth[y * 8..y * 8 + 8], "share {share} row {y}");
             }
@@ -206,18 +260,57 @@ mod tests {
         // A patch of real dark paint elsewhere keeps class 1 in the photo.
         img.data[0] = dark;
         labels[0] = 1;
-        unmix_edges(&img, &mut labels, Some(&mask), 2);
+        unmix_edges(&img, &mut labels, Some(&mask), 2, &[]);
         for y in 0..h as usize {
             assert_eq!(labels[y * 8 + 3], 0, "row {y}");
         }
         assert_eq!(labels[0], 1, "a dark pixel with no mixture to explain it stays dark");
     }
 
+    /// Slip with a black patch and an open chip of clay (both pure), crossed by two thin
+    /// lines the per-pixel rule calls black: row 3 a crack (clay in shadow, 0.55x, covering
+    /// 70 % of each pixel), row 7 a line of black paint (70 %).
+    fn crack_image() -> (LinearImage, Vec<u8>, Vec<u8>) {
+        let (w, h) = (20u32, 12u32);
+        let slip = [0.3f32, 0.24, 0.16];
+        let black = [0.011f32, 0.0075, 0.006];
+        let clay = [0.12f32, 0.046, 0.021];
+        let mut img = LinearImage::new(w, h).unwrap();
+        let (mut labels, mut truth) = (vec![0u8; (w * h) as usize], vec![0u8; (w * h) as usize]);
+        let mix = |a: [f32; 3], s: f32| [0, 1, 2].map(|c| s * a[c] + (1.0 - s) * slip[c]);
+        for y in 0..h as usize {
+            for x in 0..w as usize {
+                let i = y * w as usize + x;
+                (img.data[i], labels[i], truth[i]) = match (x, y) {
+                    (15.., 0..=4) => (black, 1, 1),
+                    (15.., 7..) => (clay, 2, 2),
+                    (..15, 3) => (mix(clay.map(|v| v * 0.55), 0.7), 1, 2),
+                    (..15, 7) => (mix(black, 0.7), 1, 1),
+                    _ => (slip, 0, 0),
+                };
+            }
+        }
+        (img, labels, truth)
+    }
+
+    #[test]
+    fn a_crack_is_told_from_a_line_of_dark_paint_when_the_loss_class_is_named() {
+        let (img, per_pixel, truth) = crack_image();
+        let mut labels = per_pixel.clone();
+        unmix_edges(&img, &mut labels, None, 3, &[2]);
+        assert_eq!(&labels[3 * 20..3 * 20 + 14], &truth[3 * 20..3 * 20 + 14], "the crack is clay");
+        assert_eq!(&labels[7 * 20..7 * 20 + 14], &truth[7 * 20..7 * 20 + 14], "the black line stays black");
+        // Without the loss class named, nothing may darken: the crack stays dark paint.
+        let mut labels = per_pixel.clone();
+        unmix_edges(&img, &mut labels, None, 3, &[]);
+        assert!(labels[3 * 20..3 * 20 + 14].iter().all(|&l| l == 1), "{:?}", &labels[3 * 20..3 * 20 + 14]);
+    }
+
     #[test]
     fn pure_pixels_and_uniform_regions_are_untouched() {
         let (img, truth) = edge_image(1.0);
         let mut labels = truth.clone();
-        assert_eq!(unmix_edges(&img, &mut labels, None, 3), 0);
+        assert_eq!(unmix_edges(&img, &mut labels, None, 3, &[]), 0);
         assert_eq!(labels, truth);
     }
 }

@@ -86,7 +86,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
             let truth = StageModel::load(&truth_dir)
                 .with_context(|| format!("reading the ground truth in {}", truth_dir.display()))?;
             let est = StageModel::load(stage)?;
-            eval::geometry::evaluate(&est, &truth)
+            let mut m = eval::geometry::evaluate(&est, &truth);
+            let albedo_path = capture.join("ground-truth").join("albedo_deteriorated.png");
+            if albedo_path.exists() {
+                let albedo = restage_authoring::imgio::LinearImage::load(&albedo_path)
+                    .with_context(|| format!("reading {}", albedo_path.display()))?;
+                m.extend(eval::geometry::decoded_by_paint(&est, &truth, &albedo.data));
+            }
+            m
         }
         EvalStep::Classify { capture, camera, seed, out } => {
             eval_classify(capture, camera, *seed, out.as_deref())?
@@ -148,8 +155,16 @@ fn eval_classify(
     }
     let mut metrics = Vec::new();
     for case in &cases {
-        let e = ec::evaluate_photo(&case.label, &case.photo, &case.truth, &case.names, &case.display, seed)
-            .with_context(|| format!("classifying {}", case.label))?;
+        let e = ec::evaluate_photo(
+            &case.label,
+            &case.photo,
+            &case.truth,
+            &case.names,
+            &case.display,
+            &case.loss,
+            seed,
+        )
+        .with_context(|| format!("classifying {}", case.label))?;
         if let Some(dir) = out {
             ec::save_case(&dir.join(&case.label), case, &e)?;
         }

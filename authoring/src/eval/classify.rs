@@ -22,8 +22,9 @@ pub const PICKS_PER_CLASS: usize = 12;
 /// Ours is also run with the picks drawn from this many seeds (`seed`, `seed + 1`, ...) and
 /// the worst accuracy is reported: the result must not hang on one lucky set of clicks.
 pub const PICK_SEEDS: u64 = 3;
-/// Accuracy target of ours on every built-in scene.
-pub const TARGET_ACCURACY: f64 = 0.98;
+/// Accuracy target of ours on every built-in scene, every pixel of the object counted (mixed
+/// edge pixels and cracks included), at the default 800x600 camera.
+pub const TARGET_ACCURACY: f64 = 0.995;
 
 /// One method's result on one photo.
 #[derive(Clone, Debug)]
@@ -144,6 +145,7 @@ pub fn evaluate_photo(
     truth: &LabelMap,
     names: &[String],
     display: &[Option<[u8; 3]>],
+    loss: &[u8],
     seed: u64,
 ) -> Result<PhotoEval, ClassifyError> {
     let k_all = names.len();
@@ -164,18 +166,20 @@ pub fn evaluate_photo(
     let pdisplay: Vec<Option<[u8; 3]>> = present.iter().map(|&c| display.get(c).copied().flatten()).collect();
     let picks = picks_from_labels(&dense, &pnames, &pdisplay, PICKS_PER_CLASS, seed)?;
     let mask: Vec<bool> = dense.data.iter().map(|&t| t != MASKED).collect();
+    let loss: Vec<u8> = loss.iter().map(|&c| dense_of[c as usize]).filter(|&d| d != MASKED).collect();
+    let opts = ClassifyOptions { loss, ..Default::default() };
 
     let t0 = Instant::now();
-    let ours = classify(photo, &picks, Some(&mask), &ClassifyOptions::default())?;
+    let ours = classify(photo, &picks, Some(&mask), &opts)?;
     let ours_score =
         score("ours (calibrated k-means)", &dense, &ours.labels.data, k, t0.elapsed().as_secs_f64());
     let t0 = Instant::now();
-    let plain = ClassifyOptions { prior_picks: f64::INFINITY, ..Default::default() };
+    let plain = ClassifyOptions { prior_picks: f64::INFINITY, ..opts.clone() };
     let eq1 = classify(photo, &picks, Some(&mask), &plain)?;
     let ours_plain_eq1 =
         score("ours, plain Eq. 1 distance", &dense, &eq1.labels.data, k, t0.elapsed().as_secs_f64());
     let t0 = Instant::now();
-    let per_pixel = ClassifyOptions { unmix_edges: false, ..Default::default() };
+    let per_pixel = ClassifyOptions { unmix_edges: false, ..opts.clone() };
     let pp = classify(photo, &picks, Some(&mask), &per_pixel)?;
     let ours_per_pixel =
         score("ours without edge unmixing", &dense, &pp.labels.data, k, t0.elapsed().as_secs_f64());
@@ -187,7 +191,7 @@ pub fn evaluate_photo(
     let mut ours_by_pick_seed = vec![(seed, ours_score.accuracy)];
     for s in seed + 1..seed + PICK_SEEDS {
         let p = picks_from_labels(&dense, &pnames, &pdisplay, PICKS_PER_CLASS, s)?;
-        let o = classify(photo, &p, Some(&mask), &ClassifyOptions::default())?;
+        let o = classify(photo, &p, Some(&mask), &opts)?;
         ours_by_pick_seed.push((s, score("", &dense, &o.labels.data, k, 0.0).accuracy));
     }
 
@@ -332,6 +336,8 @@ pub struct EvalCase {
     pub names: Vec<String>,
     /// Each class's sRGB colour in the stage's palette (used as the display colour).
     pub display: Vec<Option<[u8; 3]>>,
+    /// The loss classes (the stage's bare clay), as truth indices: a conservator names them.
+    pub loss: Vec<u8>,
 }
 
 /// Renders a built-in scene's diffusely lit photo in memory (as the capture's `photo.png`:
@@ -358,6 +364,7 @@ pub fn scene_case(scene: SceneName, camera: [u32; 2], seed: u64) -> Result<EvalC
         truth,
         names: pal.classes.iter().map(|c| c.name.clone()).collect(),
         display: pal.classes.iter().map(|c| Some(c.srgb)).collect(),
+        loss: vec![pal.clay],
     })
 }
 
@@ -378,6 +385,7 @@ pub fn capture_case(capture_dir: &Path) -> Result<EvalCase, ClassifyError> {
         truth,
         names: pal.classes.iter().map(|c| c.name.clone()).collect(),
         display: pal.classes.iter().map(|c| Some(c.srgb)).collect(),
+        loss: vec![pal.clay],
     })
 }
 
@@ -434,7 +442,9 @@ mod tests {
     #[test]
     fn tiny_virtual_vase_is_classified_well() {
         let case = scene_case(SceneName::Vase, [160, 120], 1).unwrap();
-        let e = evaluate_photo(&case.label, &case.photo, &case.truth, &case.names, &case.display, 1).unwrap();
+        let e =
+            evaluate_photo(&case.label, &case.photo, &case.truth, &case.names, &case.display, &case.loss, 1)
+                .unwrap();
         // At 160x120 half of the object's pixels are on a paint edge or the silhouette (the
         // virtual camera integrates over each pixel's area; the truth there is the majority
         // label): 0.896 measured with the per-pixel rule alone, 0.951 with edges unmixed.
@@ -461,7 +471,7 @@ mod tests {
             truth.set(x, 0, MASKED);
         }
         let names: Vec<String> = (0..6).map(|i| format!("c{i}")).collect(); // c5 absent
-        let e = evaluate_photo("synthetic", &scene.photo, &truth, &names, &[], 1).unwrap();
+        let e = evaluate_photo("synthetic", &scene.photo, &truth, &names, &[], &[], 1).unwrap();
         assert_eq!(e.classes.len(), 5);
         assert_eq!(e.object_pixels, 120 * 90 - 10);
         assert!(e.ours.accuracy > 0.99, "{:?}", e.ours);

@@ -108,6 +108,39 @@ pub fn evaluate(est: &StageModel, truth: &StageModel) -> Vec<Metric> {
     out
 }
 
+/// Linear albedo luminance below which paint counts as dark (a black glaze: about sRGB 60).
+pub const DARK_ALBEDO: f32 = 0.05;
+
+/// How much of the surface each projector lights was decoded, on dark paint and on the rest
+/// (`albedo`: the truth's linear albedo per camera pixel): dark paint returns little of the
+/// patterns' light, so its codes are the first to drown in noise. Per paint group, the worst
+/// projector's share of the truth's lit object pixels that `est` has a correspondence for.
+pub fn decoded_by_paint(est: &StageModel, truth: &StageModel, albedo: &[[f32; 3]]) -> Vec<Metric> {
+    let dark = |i: usize| {
+        let a = albedo[i];
+        0.2126 * a[0] + 0.7152 * a[1] + 0.0722 * a[2] < DARK_ALBEDO
+    };
+    let mut worst = [f64::INFINITY; 2];
+    for (te, ee) in truth.correspondences.iter().zip(&est.correspondences) {
+        let mut n = [[0usize; 2]; 2];
+        for i in 0..te.len().min(ee.len()).min(albedo.len()) {
+            if !te[i][0].is_finite() || !truth.points[i][2].is_finite() {
+                continue;
+            }
+            let g = usize::from(dark(i));
+            n[g][0] += 1;
+            n[g][1] += usize::from(ee[i][0].is_finite());
+        }
+        for g in 0..2 {
+            if n[g][0] > 0 {
+                worst[g] = worst[g].min(100.0 * n[g][1] as f64 / n[g][0] as f64);
+            }
+        }
+    }
+    let name = ["decoded, light paint (worst projector)", "decoded, dark paint (worst projector)"];
+    (0..2).filter(|&g| worst[g].is_finite()).map(|g| Metric::info(STEP, name[g], worst[g], "%")).collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -164,5 +197,19 @@ mod tests {
         assert!((get("focal error").value - 1.0).abs() < 1e-9);
         assert!(get("reprojection RMS").value > 0.05);
         assert!((get("normal error median").value - 36.87).abs() < 0.01);
+    }
+
+    #[test]
+    fn decoding_is_counted_per_paint_over_the_pixels_the_truth_lights() {
+        let t = model();
+        let mut e = t.clone();
+        // Pixel 0 light paint, pixel 1 black paint; pixel 2 sees nothing and never counts.
+        let albedo = [[0.5f32; 3], [0.01; 3], [0.01; 3]];
+        let get = |m: &[Metric], name: &str| m.iter().find(|x| x.name.contains(name)).map(|x| x.value);
+        let m = decoded_by_paint(&e, &t, &albedo);
+        assert_eq!((get(&m, "light"), get(&m, "dark")), (Some(100.0), Some(100.0)));
+        e.correspondences[0][1] = [f32::NAN; 2];
+        let m = decoded_by_paint(&e, &t, &albedo);
+        assert_eq!((get(&m, "light"), get(&m, "dark")), (Some(100.0), Some(0.0)));
     }
 }

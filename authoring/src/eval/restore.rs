@@ -226,7 +226,9 @@ pub fn prepare_scene(scene: SceneName, camera: [u32; 2], seed: u64) -> Result<Sc
     let display: Vec<Option<[u8; 3]>> = pal.classes.iter().map(|c| Some(c.srgb)).collect();
     let picks = picks_from_labels(&deteriorated, &names, &display, 40, seed)?;
     let mask: Vec<bool> = px.iter().map(|p| p.is_object()).collect();
-    let c = classify::classify(&photo, &picks, Some(&mask), &ClassifyOptions::default())?;
+    // The picks are in the stage's class order: the bare clay is loss, as a conservator says.
+    let opts = ClassifyOptions { loss: vec![pal.clay], ..Default::default() };
+    let c = classify::classify(&photo, &picks, Some(&mask), &opts)?;
     let map = class_map(&c.palette, &names);
     let classified_index = |stage_class: u8| {
         map.iter().position(|&m| m == stage_class).map(|k| k as u8).with_context(|| {

@@ -429,6 +429,10 @@ impl Project {
                     "--prior-picks".into(),
                     n(s.classify.prior_picks),
                 ];
+                // The loss classes (the restore panel's "loss" boxes) also tell cracks from dark paint.
+                for k in &s.restore.loss {
+                    a.extend(["--loss".into(), k.to_string()]);
+                }
                 let mask = self.mask_file(small);
                 if let Some(m) = &mask {
                     a.extend(["--mask".into(), p(m)]);
@@ -634,7 +638,7 @@ impl Project {
             .with_context(|| format!("reading {}", truth.display()))?
             .save(&dir.join("stage"))
             .context("writing the project's stage model")?;
-        let (picks, mask) =
+        let (picks, mask, _) =
             crate::steps::classify::picks_from_ground_truth(&capture, &dir.join(CLASSIFY_DIR), scene.seed)?;
         let mut settings = Settings::default();
         if let Some(k) = Picks::load(&picks)?.colours.iter().position(|c| c.name == "clay") {

@@ -232,9 +232,7 @@ pub const VIEW_DOWN_DEG: f64 = 4.0;
 impl Setup {
     pub fn from_config(cfg: &SceneConfig) -> Result<Self, StageSimError> {
         cfg.validate()?;
-        let centre = V3::from(OBJECT_CENTRE);
-        let down = VIEW_DOWN_DEG.to_radians();
-        let up = V3::new(0.0, -down.cos(), -down.sin());
+        let (centre, up) = object_axis();
         let profile = cfg.scene.profile();
         let height = profile.height();
         let base = centre - up * (height * 0.5);
@@ -253,10 +251,7 @@ impl Setup {
         let n = cfg.projectors as usize;
         let projector_specs: Vec<ProjectorSpec> =
             (0..n).map(|k| ProjectorSpec::default_for(k, n, cfg.seed)).collect();
-        let projectors = projector_specs
-            .iter()
-            .map(|s| SimProjector::from_spec(s, cfg.projector[0], cfg.projector[1], &centre, &up))
-            .collect();
+        let projectors = build_projectors(&projector_specs, cfg.projector);
         Ok(Self {
             label: format!(
                 "virtual stage: {}{}, seed {}",
@@ -281,6 +276,29 @@ impl Setup {
             plinth,
         })
     }
+}
+
+impl Setup {
+    /// The same stage with its projectors placed and built from `specs` instead (each at the
+    /// resolution of the setup's first projector): stages the built-in layout does not cover,
+    /// such as a projector beside the object lighting what the camera sees at a grazing angle.
+    pub fn with_projector_specs(mut self, specs: Vec<ProjectorSpec>) -> Self {
+        let size = self.projectors.first().map_or([800, 600], |p| [p.width, p.height]);
+        self.projectors = build_projectors(&specs, size);
+        self.projector_specs = specs;
+        self
+    }
+}
+
+/// The built-in object's centre and axis (camera frame): every scene stands there.
+fn object_axis() -> (V3, V3) {
+    let down = VIEW_DOWN_DEG.to_radians();
+    (V3::from(OBJECT_CENTRE), V3::new(0.0, -down.cos(), -down.sin()))
+}
+
+fn build_projectors(specs: &[ProjectorSpec], size: [u32; 2]) -> Vec<SimProjector> {
+    let (centre, up) = object_axis();
+    specs.iter().map(|s| SimProjector::from_spec(s, size[0], size[1], &centre, &up)).collect()
 }
 
 /// What a camera pixel mostly sees.
@@ -415,7 +433,7 @@ struct BounceState {
 }
 
 /// Sub-pixels per side of a mixed camera pixel.
-const SUB_N: usize = 4;
+const SUB_N: usize = 5;
 /// Sub-samples of a mixed camera pixel.
 const SUB_COUNT: usize = SUB_N * SUB_N;
 /// Depth difference (mm) between neighbouring probes of one pixel that counts as an edge

@@ -37,6 +37,11 @@ pub struct ClassifyArgs {
     /// covariance of its picks) is shrunk towards; `inf` = the paper's Eq. 1 for every colour.
     #[arg(long, default_value_t = classify::DEFAULT_PRIOR_PICKS)]
     pub prior_picks: f64,
+    /// A class that is loss (bare substrate: clay in chips and cracks), by index in the picks
+    /// (repeat for several; as `restore --loss`). Thin dark lines of it, cracks in shadow,
+    /// are then told from dark paint.
+    #[arg(long = "loss")]
+    pub loss: Vec<u8>,
 }
 
 /// What one classification run did, for the summary line and the demo.
@@ -76,6 +81,7 @@ pub fn run(args: &ClassifyArgs, progress: &dyn Progress) -> Result<ClassifySumma
     let opts = ClassifyOptions {
         max_iterations: args.max_iterations,
         prior_picks: args.prior_picks,
+        loss: args.loss.clone(),
         ..Default::default()
     };
     classify_files(&args.photo, &args.picks, args.mask.as_deref(), &args.out, &opts, progress)
@@ -133,8 +139,13 @@ pub fn load_mask(path: &Path, width: u32, height: u32) -> Result<Vec<bool>> {
 
 /// The demo's stand-in for the conservator: picks (a handful of pixels per colour, seeded)
 /// and the object mask, derived from the virtual stage's ground truth in `capture_dir`, written
-/// as `picks.json` and `mask.png` into `out`. Returns their paths.
-pub fn picks_from_ground_truth(capture_dir: &Path, out: &Path, seed: u64) -> Result<(PathBuf, PathBuf)> {
+/// as `picks.json` and `mask.png` into `out`. Returns their paths and the loss classes (the
+/// stage's bare clay) as indices into the picks.
+pub fn picks_from_ground_truth(
+    capture_dir: &Path,
+    out: &Path,
+    seed: u64,
+) -> Result<(PathBuf, PathBuf, Vec<u8>)> {
     use restage_authoring::eval::classify::{PICKS_PER_CLASS, capture_case};
     let case = capture_case(capture_dir)
         .with_context(|| format!("reading ground truth of {}", capture_dir.display()))?;
@@ -159,5 +170,7 @@ pub fn picks_from_ground_truth(capture_dir: &Path, out: &Path, seed: u64) -> Res
         .expect("one byte per pixel")
         .save(&mask_path)
         .with_context(|| format!("writing {}", mask_path.display()))?;
-    Ok((picks_path, mask_path))
+    let loss =
+        present.iter().enumerate().filter(|(_, c)| case.loss.contains(&(**c as u8))).map(|(d, _)| d as u8);
+    Ok((picks_path, mask_path, loss.collect()))
 }

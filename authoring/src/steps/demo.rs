@@ -138,13 +138,14 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
 
     // Step 3: colour classification, with picks the virtual stage derives from its ground truth.
     let classify_dir = args.out.join("classify");
-    let (picks, mask) = super::classify::picks_from_ground_truth(&capture_dir, &classify_dir, args.seed)?;
+    let (picks, mask, loss) =
+        super::classify::picks_from_ground_truth(&capture_dir, &classify_dir, args.seed)?;
     let summary = super::classify::classify_files(
         &capture_dir.join(&manifest.photo),
         &picks,
         Some(&mask),
         &classify_dir,
-        &restage_authoring::classify::ClassifyOptions::default(),
+        &restage_authoring::classify::ClassifyOptions { loss, ..Default::default() },
         progress,
     )?;
     tracing::info!("step 3 (classify) done at {:.1} s: {summary}", start.elapsed().as_secs_f64());

@@ -127,12 +127,15 @@ pub fn run_chain(
     tracing::info!("step 3 mask: {mask_line}");
     log(format!("3 mask        {mask_line}"));
     let photo_path = capture_dir.join(&manifest.photo);
+    // The bare clay that chips and cracks expose is loss, as a conservator would say.
+    let loss: Vec<u8> =
+        present.iter().position(|&c| c == palette.clay).map(|k| k as u8).into_iter().collect();
     let cls = super::classify::classify_files(
         &photo_path,
         &picks_path,
         Some(&mask_path),
         &classify_dir,
-        &restage_authoring::classify::ClassifyOptions::default(),
+        &restage_authoring::classify::ClassifyOptions { loss: loss.clone(), ..Default::default() },
         progress,
     )?;
     tracing::info!(
@@ -155,8 +158,7 @@ pub fn run_chain(
         gamma: None,
         neighbours: defaults.neighbours,
         scale: defaults.scale_px,
-        // The bare clay that chips and cracks expose is loss, as a conservator would say.
-        loss: present.iter().position(|&c| c == palette.clay).map(|k| k as u8).into_iter().collect(),
+        loss,
         regions: vec![],
         background: None,
         hints: None,

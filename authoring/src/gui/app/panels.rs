@@ -220,7 +220,10 @@ impl App {
                 let mut loss = w.settings.restore.loss.contains(&k);
                 if ui
                     .checkbox(&mut loss, "loss")
-                    .on_hover_text("this class is loss (bare clay): filled from its neighbours")
+                    .on_hover_text(
+                        "this class is loss (bare clay in chips and cracks): its cracks are told from dark paint, \
+                         and it is filled from its neighbours",
+                    )
                     .changed()
                 {
                     w.settings.restore.loss.retain(|&l| l != k);
