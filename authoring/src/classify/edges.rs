@@ -14,7 +14,7 @@
 //! edge pixel is also explained with a loss class darkened (0.9x to 0.4x of its chips'
 //! colour) mixed with a paint around; that explanation, which has one more freedom, is taken
 //! only where the plain one is worse than the median edge pixel's and the darkened one at
-//! least [`CRACK_EVIDENCE`] times better, and only where every paint around has a pure pixel
+//! least twice as good, and only where every paint around has a pure pixel
 //! somewhere to measure its colour (at low resolution a thin paint line has none, its mean
 //! is a mixture, and a darkened substrate would explain three-paint mixtures it cannot).
 
