@@ -34,7 +34,9 @@ const CRACK_EVIDENCE: f64 = 2.0;
 /// neighbourhood of one class) are left alone and supply the colours: each candidate paint's
 /// colour is the mean of its pure pixels within 2 px (the shading there), else that paint's
 /// mean over the whole photo (a thin line has no pure pixel). The result does not depend on
-/// the order pixels are visited in: every decision reads the labels as they were.
+/// the order pixels are visited in: every decision reads the labels as they were. `loss`:
+/// the loss classes (bare substrate) whose cracks are told from dark paint (module notes);
+/// empty for none.
 pub fn unmix_edges(
     photo: &LinearImage,
     labels: &mut [u8],
@@ -139,7 +141,6 @@ pub fn unmix_edges(
                 }
             }
         }
-        // A crack takes the extra freedom of a shade: it must explain the pixel clearly better.
         decided.push((i, best));
     }
     // A crack takes the extra freedom of a shade only where the paints around leave the pixel
