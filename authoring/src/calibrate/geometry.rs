@@ -89,10 +89,23 @@ pub fn solve_geometry(
 ) -> Result<(StageModel, GeometryReport, DenseGeometry, SelfCalResult), CalibrateError> {
     let cam = &manifest.camera;
     let maps: Vec<Vec<[f32; 2]>> = decodes.iter().map(ProjectorDecode::pairs).collect();
+    // The rig is solved on the pixels bright enough for the fixed contrast threshold: faint
+    // ones (dark paint, lit by their own noise figure) carry several times the noise and are
+    // only triangulated.
+    let bright: Vec<Vec<[f32; 2]>> = maps
+        .iter()
+        .zip(decodes)
+        .map(|(m, d)| {
+            m.iter()
+                .zip(&d.contrast)
+                .map(|(&c, &k)| if k > options.decode.min_contrast { c } else { [f32::NAN; 2] })
+                .collect()
+        })
+        .collect();
     let obs: Vec<ProjectorObservations> = manifest
         .projectors
         .iter()
-        .zip(&maps)
+        .zip(&bright)
         .map(|(p, m)| ProjectorObservations { width: p.width, height: p.height, map: m })
         .collect();
     let mut cal = selfcal::self_calibrate(cam, &obs, &options.selfcal)?;

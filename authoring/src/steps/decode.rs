@@ -129,16 +129,17 @@ pub fn run(args: &DecodeArgs, progress: &dyn Progress) -> Result<Vec<DecodeQuali
         }
         tracing::info!(
             "projector {}: {} of {} pixels decoded, {:.3} % inconsistent with their neighbours \
-             ({} lit, {} weak, {} out of range, {} weak and inconsistent, {} phase-rejected)",
+             ({} lit, {} of them faint, {} weak, {} out of range, {} phase-rejected, {} weak and inconsistent)",
             q.projector,
             q.decoded,
             q.pixels,
             100.0 * q.inconsistent,
             q.lit,
+            q.faint,
             q.weak,
             q.out_of_range,
-            q.weak_inconsistent,
-            q.phase_rejected
+            q.phase_rejected,
+            q.weak_inconsistent
         );
     }
     let path = args.out.join("decode.json");
