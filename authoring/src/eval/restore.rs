@@ -47,6 +47,22 @@ pub fn label_error(labels: &LabelMap, pristine: &LabelMap, map: &[u8]) -> (usize
     (wrong, total)
 }
 
+/// Chip pixels (the worn labels show a loss class where the pristine paint was not loss) that
+/// `labels` gives their pristine class, in per cent, and how many there are: whether chips are
+/// filled with the colour that surrounds them rather than that of a misread rim.
+pub fn chips_restored(labels: &LabelMap, scene: &Scene) -> (f64, usize) {
+    let loss: Vec<u8> = scene.loss_classes.iter().map(|&k| scene.map[k as usize]).collect();
+    let (mut right, mut chips) = (0usize, 0usize);
+    for ((&a, &p), &d) in labels.data.iter().zip(&scene.pristine.data).zip(&scene.deteriorated.data) {
+        if a == MASKED || p == MASKED || !loss.contains(&d) || loss.contains(&p) {
+            continue;
+        }
+        chips += 1;
+        right += usize::from(scene.map[a as usize] == p);
+    }
+    (if chips == 0 { 100.0 } else { 100.0 * right as f64 / chips as f64 }, chips)
+}
+
 /// Contour pixels: object pixels with a 4-neighbour (on the object) of another class.
 fn contour_pixels(data: &[u8], w: usize, h: usize) -> Vec<bool> {
     let mut c = vec![false; w * h];
@@ -256,6 +272,7 @@ pub fn score(scene: &Scene, method: &str, labels: &LabelMap) -> Vec<Metric> {
     let fixed = if before == 0 { 1.0 } else { (before as f64 - after as f64) / before as f64 };
     let (mean, p95) = contour_distance(labels, &scene.pristine, map);
     let (back_mean, back_p95) = contour_distance_back(labels, &scene.pristine, map);
+    let (chips, _) = chips_restored(labels, scene);
     let n = |what: &str| format!("{} {method}: {what}", scene.name);
     let is_ours = method == "ours";
     vec![
@@ -273,6 +290,7 @@ pub fn score(scene: &Scene, method: &str, labels: &LabelMap) -> Vec<Metric> {
         Metric::info(STEP, &n("contour distance p95"), p95, "px"),
         Metric::info(STEP, &n("pristine contour distance mean"), back_mean, "px"),
         Metric::info(STEP, &n("pristine contour distance p95"), back_p95, "px"),
+        Metric::info(STEP, &n("chip pixels in their pristine colour"), chips, "%"),
     ]
 }
 
@@ -371,6 +389,10 @@ mod tests {
             let (ours, mode) = (get(scene, "ours: wrong pixels"), get(scene, "mode filter: wrong pixels"));
             assert!(fixed >= 0.5 && mean < 1.0, "{scene}: fixed {fixed:.3}, contour distance {mean:.3} px");
             assert!(ours < mode, "{scene}: ours {ours:.3} % wrong vs mode filter {mode:.3} %");
+            // Chips take the colour around them, not that of their misread rims (measured
+            // 78.8-90.0 %; a thin line crossing a chip is cut by the fill).
+            let chips = get(scene, "ours: chip pixels in their pristine colour");
+            assert!(chips > 75.0, "{scene}: {chips:.1} % of chip pixels in their pristine colour");
         }
     }
 
