@@ -32,7 +32,7 @@ pub enum CaptureSetError {
 }
 
 /// Pinhole camera intrinsics in the OpenCV convention: integer pixel coordinates are pixel
-/// centres, +x right, +y down; no distortion (undistort before, if a real lens needs it).
+/// centres, +x right, +y down; with a real lens, OpenCV's radial and tangential distortion.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraIntrinsics {
@@ -42,6 +42,14 @@ pub struct CameraIntrinsics {
     pub fy: f64,
     pub cx: f64,
     pub cy: f64,
+    /// Lens distortion `[k1, k2, p1, p2, k3]` in OpenCV's model (absent: none). Calibration
+    /// undistorts camera rays with it; everything downstream works per camera pixel.
+    #[serde(default, skip_serializing_if = "no_distortion")]
+    pub distortion: [f64; 5],
+}
+
+fn no_distortion(d: &[f64; 5]) -> bool {
+    d.iter().all(|&k| k == 0.0)
 }
 
 impl CameraIntrinsics {
@@ -70,7 +78,50 @@ impl CameraIntrinsics {
                 self.cx, self.cy, self.width, self.height
             ));
         }
+        if !self.distortion.iter().all(|k| k.is_finite()) {
+            return Err(format!("distortion {:?} is not finite", self.distortion));
+        }
         Ok(())
+    }
+
+    /// A camera without lens distortion.
+    pub fn pinhole(width: u32, height: u32, fx: f64, fy: f64, cx: f64, cy: f64) -> Self {
+        Self { width, height, fx, fy, cx, cy, distortion: [0.0; 5] }
+    }
+
+    /// Normalised image coordinates `(x, y)` (the ray `(x, y, 1)`) of pixel `(u, v)`, lens
+    /// distortion removed by OpenCV's fixed-point iteration (`undistortPoints`).
+    pub fn undistort(&self, u: f64, v: f64) -> [f64; 2] {
+        let (x0, y0) = ((u - self.cx) / self.fx, (v - self.cy) / self.fy);
+        if no_distortion(&self.distortion) {
+            return [x0, y0];
+        }
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        let (mut x, mut y) = (x0, y0);
+        // The iteration contracts by about k1 r^2 per step: slow at the corners of a wide lens.
+        for _ in 0..200 {
+            let r2 = x * x + y * y;
+            let radial = 1.0 + ((k3 * r2 + k2) * r2 + k1) * r2;
+            let dx = 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+            let dy = p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+            let next = ((x0 - dx) / radial, (y0 - dy) / radial);
+            let moved = (next.0 - x).abs() + (next.1 - y).abs();
+            (x, y) = next;
+            if moved < 1e-15 {
+                break;
+            }
+        }
+        [x, y]
+    }
+
+    /// Pixel of normalised image coordinates `(x, y)`: the inverse of [`Self::undistort`].
+    pub fn distort(&self, x: f64, y: f64) -> [f64; 2] {
+        let [k1, k2, p1, p2, k3] = self.distortion;
+        let r2 = x * x + y * y;
+        let radial = 1.0 + ((k3 * r2 + k2) * r2 + k1) * r2;
+        let xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x);
+        let yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y;
+        [self.fx * xd + self.cx, self.fy * yd + self.cy]
     }
 }
 
@@ -180,6 +231,26 @@ mod tests {
     use super::*;
 
     #[test]
+    fn undistortion_inverts_opencvs_lens_model() {
+        // The real rig's camera (procam-graycode-plane): tens of pixels of distortion at the corners.
+        let cam = CameraIntrinsics {
+            distortion: [0.104, -0.193, -0.0024, -0.0037, 0.046],
+            ..CameraIntrinsics::pinhole(1280, 1024, 744.3, 741.8, 634.2, 473.0)
+        };
+        for (u, v) in [(0.0, 0.0), (1279.0, 1023.0), (640.0, 20.0), (634.2, 473.0), (100.0, 900.0)] {
+            let [x, y] = cam.undistort(u, v);
+            let back = cam.distort(x, y);
+            assert!((back[0] - u).abs() < 1e-6 && (back[1] - v).abs() < 1e-6, "({u}, {v}) -> {back:?}");
+        }
+        // The top-left corner is about 50 px from where a pinhole would put it.
+        let [x, y] = cam.undistort(0.0, 0.0);
+        let moved = (x * 744.3 + 634.2).hypot(y * 741.8 + 473.0);
+        assert!(moved > 20.0, "the corner moves {moved} px");
+        let json = serde_json::to_string(&CameraIntrinsics::pinhole(4, 3, 5.0, 5.0, 1.5, 1.0)).unwrap();
+        assert!(!json.contains("distortion"), "{json}");
+    }
+
+    #[test]
     fn gray_bits_cover_extent() {
         assert_eq!(gray_bits(1024), 10);
         assert_eq!(gray_bits(1400), 11);
@@ -193,7 +264,15 @@ mod tests {
         let m = CaptureManifest {
             version: CAPTURE_VERSION,
             source: "test".into(),
-            camera: CameraIntrinsics { width: 4, height: 3, fx: 5.0, fy: 5.0, cx: 1.5, cy: 1.0 },
+            camera: CameraIntrinsics {
+                width: 4,
+                height: 3,
+                fx: 5.0,
+                fy: 5.0,
+                cx: 1.5,
+                cy: 1.0,
+                distortion: [0.0; 5],
+            },
             photo: "photo.png".into(),
             projectors: vec![ProjectorCapture {
                 index: 0,

@@ -24,6 +24,9 @@ enum Command {
     Capture(steps::capture::CaptureArgs),
     /// Calibrate the stage: capture set in, stage model out, with a PNG report and a PLY model.
     Calibrate(steps::calibrate::CalibrateArgs),
+    /// Calibrate the rig once (projector intrinsics and poses) from captures through it: a
+    /// non-planar scene or two or more poses of a flat board; `calibrate --rig` then uses it.
+    Rig(steps::rig::RigArgs),
     /// Decode structured light to correspondence maps (our captures or OpenCV's order).
     Decode(steps::decode::DecodeArgs),
     /// Compare a step's output with the virtual stage's ground truth (table and JSON).
@@ -78,6 +81,7 @@ fn run(command: Command) -> Result<()> {
     match command {
         Command::Capture(args) => cli::capture(&args),
         Command::Calibrate(args) => cli::calibrate(&args),
+        Command::Rig(args) => cli::rig(&args),
         Command::Decode(args) => cli::decode(&args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Simulate(args) => cli::simulate(&args),

@@ -973,6 +973,7 @@ mod tests {
             fy: f,
             cx: (w as f64 - 1.0) / 2.0,
             cy: (h as f64 - 1.0) / 2.0,
+            distortion: [0.0; 5],
         };
         let n = (w * h) as usize;
         let (mut points, mut normals, mut object) =
@@ -1169,7 +1170,15 @@ mod tests {
 
     #[test]
     fn bad_inputs_are_refused() {
-        let cam = CameraIntrinsics { width: 2, height: 2, fx: 1.0, fy: 1.0, cx: 0.5, cy: 0.5 };
+        let cam = CameraIntrinsics {
+            width: 2,
+            height: 2,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 0.5,
+            cy: 0.5,
+            distortion: [0.0; 5],
+        };
         let p = SegmentParams::default();
         assert!(matches!(
             propose_from(&cam, &[[0.0; 3]; 3], &[[0.0; 3]; 4], &p),
@@ -1248,7 +1257,7 @@ mod tests {
             let mut rng = ChaCha8Rng::seed_from_u64(seed);
             let n = (w * h) as usize;
             let f = 50.0;
-            let cam = CameraIntrinsics { width: w, height: h, fx: f, fy: f, cx: w as f64 / 2.0, cy: h as f64 / 2.0 };
+            let cam = CameraIntrinsics { width: w, height: h, fx: f, fy: f, cx: w as f64 / 2.0, cy: h as f64 / 2.0, distortion: [0.0; 5] };
             // A few depth layers, some tilted, some noisy.
             let layers: Vec<(f64, f64, f64)> = (0..3)
                 .map(|_| (rng.gen_range(300.0..1500.0), rng.gen_range(-2.0..2.0), rng.gen_range(-2.0..2.0)))

@@ -184,7 +184,15 @@ mod tests {
     fn tiny() -> StageModel {
         let ramp: Vec<f32> = (0..256).map(|i| (i as f32 / 255.0).powf(2.2)).collect();
         StageModel {
-            camera: CameraIntrinsics { width: 2, height: 1, fx: 10.0, fy: 10.0, cx: 0.5, cy: 0.0 },
+            camera: CameraIntrinsics {
+                width: 2,
+                height: 1,
+                fx: 10.0,
+                fy: 10.0,
+                cx: 0.5,
+                cy: 0.0,
+                distortion: [0.0; 5],
+            },
             projectors: vec![ProjectorModel {
                 width: 4,
                 height: 3,

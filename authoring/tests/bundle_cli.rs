@@ -31,7 +31,15 @@ fn stage(spec: &ExampleSpec) -> StageModel {
         vignetting: vec![],
     };
     StageModel {
-        camera: CameraIntrinsics { width: 1, height: 1, fx: 10.0, fy: 10.0, cx: 0.0, cy: 0.0 },
+        camera: CameraIntrinsics {
+            width: 1,
+            height: 1,
+            fx: 10.0,
+            fy: 10.0,
+            cx: 0.0,
+            cy: 0.0,
+            distortion: [0.0; 5],
+        },
         projectors: vec![proj; spec.projectors],
         points: vec![[0.0, 0.0, 500.0]],
         normals: vec![[0.0, 0.0, -1.0]],

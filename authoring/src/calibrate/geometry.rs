@@ -13,7 +13,10 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::decode::{self, CaptureImages, DecodeParams, DecodeQuality, ProjectorDecode};
-use super::selfcal::{self, Conditioning, KnownLength, ProjectorObservations, SelfCalParams, SelfCalResult};
+use super::rig::{self, Rig, RigUnits};
+use super::selfcal::{
+    self, Conditioning, KnownLength, ProjectorGeometry, ProjectorObservations, SelfCalParams, SelfCalResult,
+};
 use super::triangulate::{self, DenseGeometry, TriangulateParams};
 use super::{CalibrateError, SolverError};
 use crate::capture_set::CaptureManifest;
@@ -56,6 +59,10 @@ pub struct GeometryReport {
     #[serde(deserialize_with = "super::nan_if_null")]
     pub scale_mm: f64,
     pub conditioning: Vec<Conditioning>,
+    /// With a saved rig: per projector, the median distance (projector px) of this capture's
+    /// correspondences from the rig's epipolar lines (empty when self-calibrated).
+    #[serde(default)]
+    pub rig_epipolar_median_px: Vec<f64>,
     pub warnings: Vec<String>,
 }
 
@@ -88,20 +95,7 @@ pub fn solve_geometry(
     options: &GeometryOptions,
 ) -> Result<(StageModel, GeometryReport, DenseGeometry, SelfCalResult), CalibrateError> {
     let cam = &manifest.camera;
-    let maps: Vec<Vec<[f32; 2]>> = decodes.iter().map(ProjectorDecode::pairs).collect();
-    // The rig is solved on the pixels bright enough for the fixed contrast threshold: faint
-    // ones (dark paint, lit by their own noise figure) carry several times the noise and are
-    // only triangulated.
-    let bright: Vec<Vec<[f32; 2]>> = maps
-        .iter()
-        .zip(decodes)
-        .map(|(m, d)| {
-            m.iter()
-                .zip(&d.contrast)
-                .map(|(&c, &k)| if k > options.decode.min_contrast { c } else { [f32::NAN; 2] })
-                .collect()
-        })
-        .collect();
+    let bright = rig::bright_maps(decodes, options.decode.min_contrast);
     let obs: Vec<ProjectorObservations> = manifest
         .projectors
         .iter()
@@ -113,12 +107,82 @@ pub fn solve_geometry(
     for g in &mut cal.projectors {
         g.translation *= scale;
     }
+    let solved = Solved {
+        geometry: &cal.projectors,
+        adjustment_rms_px: cal.rms_px,
+        adjustment_iterations: cal.iterations,
+        scale_mm: scale,
+        conditioning: cal.conditioning.clone(),
+        warnings: cal.warnings.clone(),
+        rig_epipolar_median_px: Vec::new(),
+        how: "geometry",
+    };
+    let (model, report, dense) = build_model(manifest, decodes, solved, &options.triangulate)?;
+    Ok((model, report, dense, cal))
+}
+
+/// The geometry of an object capture through a saved rig: the rig is checked against the
+/// capture (a projector moved since is named), then every pixel is triangulated with it. No
+/// self-calibration, so a flat object is as good as a round one. `known`, when given, rescales
+/// the rig (and is needed when the rig was calibrated without a length).
+pub fn solve_with_rig(
+    manifest: &CaptureManifest,
+    decodes: &[ProjectorDecode],
+    rig: &Rig,
+    rig_path: &Path,
+    known: Option<&KnownLength>,
+    triangulate: &TriangulateParams,
+) -> Result<(StageModel, GeometryReport, DenseGeometry), CalibrateError> {
+    let sizes: Vec<(u32, u32)> = manifest.projectors.iter().map(|p| (p.width, p.height)).collect();
+    let medians = rig.check(&manifest.camera, &sizes, decodes, rig_path)?;
+    let geometry = rig.geometry(known)?;
+    let scale = match rig.units {
+        RigUnits::Millimetres => {
+            geometry[0].translation.norm() / rig.projectors[0].geometry().translation.norm()
+        }
+        RigUnits::Baseline => geometry[0].translation.norm(),
+    };
+    let solved = Solved {
+        geometry: &geometry,
+        adjustment_rms_px: rig.rms_px,
+        adjustment_iterations: 0,
+        scale_mm: scale,
+        conditioning: rig.projectors.iter().map(|p| p.conditioning.clone()).collect(),
+        warnings: rig.warnings.clone(),
+        rig_epipolar_median_px: medians,
+        how: "geometry from the saved rig",
+    };
+    build_model(manifest, decodes, solved, triangulate)
+}
+
+/// Projector geometry (millimetres) and the figures of how it was found.
+struct Solved<'a> {
+    geometry: &'a [ProjectorGeometry],
+    adjustment_rms_px: f64,
+    adjustment_iterations: usize,
+    scale_mm: f64,
+    conditioning: Vec<Conditioning>,
+    warnings: Vec<String>,
+    rig_epipolar_median_px: Vec<f64>,
+    how: &'static str,
+}
+
+/// Triangulates every decoded pixel with the solved projectors and fills the stage model's
+/// geometric fields.
+fn build_model(
+    manifest: &CaptureManifest,
+    decodes: &[ProjectorDecode],
+    solved: Solved,
+    triangulate: &TriangulateParams,
+) -> Result<(StageModel, GeometryReport, DenseGeometry), CalibrateError> {
+    let cam = &manifest.camera;
+    let maps: Vec<Vec<[f32; 2]>> = decodes.iter().map(ProjectorDecode::pairs).collect();
     let refs: Vec<&[[f32; 2]]> = maps.iter().map(Vec::as_slice).collect();
-    let dense = triangulate::triangulate(cam, &cal.projectors, &refs, &options.triangulate);
+    let dense = triangulate::triangulate(cam, solved.geometry, &refs, triangulate);
     let mut warnings: Vec<String> = decodes.iter().flat_map(|d| d.quality.warnings.clone()).collect();
-    warnings.extend(cal.warnings.iter().cloned());
-    let projectors = cal
-        .projectors
+    warnings.extend(solved.warnings);
+    let projectors = solved
+        .geometry
         .iter()
         .zip(decodes)
         .map(|(g, d)| {
@@ -153,25 +217,27 @@ pub fn solve_geometry(
         gain: Vec::new(),
         ambient: Vec::new(),
         provenance: format!(
-            "restage calibrate {} (geometry; responses from ramps or identity until radiometry) from: {}",
+            "restage calibrate {} ({}; responses from ramps or identity until radiometry) from: {}",
             env!("CARGO_PKG_VERSION"),
+            solved.how,
             manifest.source
         ),
     };
     model.validate().map_err(SolverError::Model)?;
     let report = GeometryReport {
         decode: decodes.iter().map(|d| d.quality.clone()).collect(),
-        adjustment_rms_px: cal.rms_px,
-        adjustment_iterations: cal.iterations,
+        adjustment_rms_px: solved.adjustment_rms_px,
+        adjustment_iterations: solved.adjustment_iterations,
         dense_rms_px: dense.rms_px(),
         points: dense.valid,
         rejected_by_residual: dense.rejected_residual,
         rejected_by_depth: dense.rejected_depth,
-        scale_mm: scale,
-        conditioning: cal.conditioning.clone(),
+        scale_mm: solved.scale_mm,
+        conditioning: solved.conditioning,
+        rig_epipolar_median_px: solved.rig_epipolar_median_px,
         warnings,
     };
-    Ok((model, report, dense, cal))
+    Ok((model, report, dense))
 }
 
 /// Largest extent of the reconstructed points (bounding-box diagonal, mm).
@@ -208,6 +274,7 @@ mod tests {
             rejected_by_residual: 1,
             rejected_by_depth: 0,
             scale_mm: 600.0,
+            rig_epipolar_median_px: Vec::new(),
             conditioning: vec![Conditioning {
                 projector: 0,
                 f_std_px: 1.0,
@@ -215,6 +282,8 @@ mod tests {
                 cy_std_px: 2.0,
                 cx_std_data_only_px: f64::INFINITY,
                 homography_fraction: 0.1,
+                rotation_std_deg: 0.01,
+                translation_std: 0.2,
             }],
             warnings: vec!["w".into()],
         };

@@ -331,7 +331,15 @@ mod tests {
     fn wall() -> StageModel {
         let (w, h) = (20u32, 10u32);
         let n = (w * h) as usize;
-        let camera = CameraIntrinsics { width: w, height: h, fx: 20.0, fy: 20.0, cx: 9.5, cy: 4.5 };
+        let camera = CameraIntrinsics {
+            width: w,
+            height: h,
+            fx: 20.0,
+            fy: 20.0,
+            cx: 9.5,
+            cy: 4.5,
+            distortion: [0.0; 5],
+        };
         let mut points = Vec::new();
         let mut corr = Vec::new();
         for i in 0..n {
@@ -425,7 +433,7 @@ mod tests {
         let mut m = wall();
         let n = (w * h) as usize;
         let (cx, cy, f) = ((w as f64 - 1.0) / 2.0, (h as f64 - 1.0) / 2.0, w as f64);
-        m.camera = CameraIntrinsics { width: w, height: h, fx: f, fy: f, cx, cy };
+        m.camera = CameraIntrinsics { width: w, height: h, fx: f, fy: f, cx, cy, distortion: [0.0; 5] };
         m.points.clear();
         m.correspondences[0].clear();
         for i in 0..n as u32 {

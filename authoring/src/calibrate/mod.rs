@@ -9,6 +9,7 @@ pub mod photometric;
 pub mod ply;
 pub mod radiometry;
 pub mod report;
+pub mod rig;
 pub mod selfcal;
 pub mod transport;
 pub mod triangulate;
@@ -72,6 +73,8 @@ pub enum IllPosed {
 pub enum SolverError {
     #[error("projector {projector}: correspondence map has {got} entries, expected {want}")]
     MapSize { projector: usize, got: usize, want: usize },
+    #[error("capture {pose} has {got} projectors where the first has {want} (one rig, the same projectors)")]
+    PoseProjectors { pose: usize, got: usize, want: usize },
     #[error("projector {projector}: essential-matrix decomposition failed")]
     Decomposition { projector: usize },
     #[error("the solved stage model is inconsistent: {0}")]
@@ -98,6 +101,11 @@ pub enum CalibrateError {
     IllPosed(#[from] IllPosed),
     #[error("self-calibration failed: {0}")]
     Solver(#[from] SolverError),
+    #[error(
+        "the rig has moved since it was calibrated: {moved} (medians, projector px); calibrate the \
+         rig again (`restage-author rig`)"
+    )]
+    RigMoved { moved: String },
     #[error("known length: {0}")]
     KnownLength(String),
     #[error("cannot write {path}: {source}")]

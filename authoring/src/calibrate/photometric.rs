@@ -786,7 +786,15 @@ mod tests {
         let manifest = CaptureManifest {
             version: CAPTURE_VERSION,
             source: "test".into(),
-            camera: CameraIntrinsics { width: cw, height: ch, fx: 50.0, fy: 50.0, cx: 36.0, cy: 28.0 },
+            camera: CameraIntrinsics {
+                width: cw,
+                height: ch,
+                fx: 50.0,
+                fy: 50.0,
+                cx: 36.0,
+                cy: 28.0,
+                distortion: [0.0; 5],
+            },
             photo: "photo.png".into(),
             projectors: vec![ProjectorCapture { index: 0, width: pw, height: ph, shots }],
         };

@@ -102,6 +102,13 @@ pub struct Conditioning {
     /// Fraction of this projector's inliers a single homography explains (1 = planar scene).
     #[serde(deserialize_with = "super::nan_if_null")]
     pub homography_fraction: f64,
+    /// The pose's standard deviations: rotation (degrees, root sum of the three axes) and
+    /// translation (root sum of the three components, in the model's units; the scale's own
+    /// error not included). Absent in older reports.
+    #[serde(default, deserialize_with = "super::nan_if_null")]
+    pub rotation_std_deg: f64,
+    #[serde(default, deserialize_with = "super::nan_if_null")]
+    pub translation_std: f64,
 }
 
 #[derive(Clone, Debug)]
@@ -113,12 +120,25 @@ pub struct SelfCalResult {
     pub inliers: usize,
     pub iterations: usize,
     pub conditioning: Vec<Conditioning>,
+    /// Per projector: RMS reprojection error (projector px) of its inlier observations.
+    pub per_projector_rms_px: Vec<f64>,
     pub warnings: Vec<String>,
 }
 
-/// Unit-depth camera ray through a pixel: `X = z * ray`.
+/// Unit-depth camera ray through a pixel: `X = z * ray` (lens distortion removed).
 pub fn camera_ray(cam: &CameraIntrinsics, u: f64, v: f64) -> Vector3<f64> {
-    Vector3::new((u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, 1.0)
+    let [x, y] = cam.undistort(u, v);
+    Vector3::new(x, y, 1.0)
+}
+
+/// The ideal pinhole pixel of a camera ray (what the two-view geometry is fitted on).
+fn pinhole_pixel(cam: &CameraIntrinsics, ray: &Vector3<f64>) -> [f64; 2] {
+    [ray.x / ray.z * cam.fx + cam.cx, ray.y / ray.z * cam.fy + cam.cy]
+}
+
+/// Unit-depth ray of an ideal pinhole pixel (the inverse of [`pinhole_pixel`]).
+fn pinhole_ray(cam: &CameraIntrinsics, p: [f64; 2]) -> Vector3<f64> {
+    Vector3::new((p[0] - cam.cx) / cam.fx, (p[1] - cam.cy) / cam.fy, 1.0)
 }
 
 fn skew(a: &Vector3<f64>) -> Matrix3<f64> {
@@ -341,7 +361,7 @@ fn initialise(
                 .filter(|&i| inliers[i])
                 .step_by(7)
                 .filter(|&i| {
-                    let ray = camera_ray(cam, cpx[i][0], cpx[i][1]);
+                    let ray = pinhole_ray(cam, cpx[i]);
                     let xp = kinv * Vector3::new(ppx[i][0], ppx[i][1], 1.0);
                     let z = depth_from(&r, &t, &ray, &xp);
                     z > 0.0 && (r * (ray * z) + t).z > 0.0
@@ -524,7 +544,31 @@ pub fn self_calibrate(
     projectors: &[ProjectorObservations],
     params: &SelfCalParams,
 ) -> Result<SelfCalResult, CalibrateError> {
-    let samples = subsample(cam, projectors, params)?;
+    self_calibrate_poses(cam, &[projectors], params)
+}
+
+/// [`self_calibrate`] over several captures made through one fixed rig (the camera and the
+/// projectors not moved, the scene moved or changed between them): every capture's
+/// correspondences constrain the same projectors, each capture's points have their own depths.
+/// Two poses of a flat board, each planar and ill-posed alone, together determine the rig.
+pub fn self_calibrate_poses(
+    cam: &CameraIntrinsics,
+    poses: &[&[ProjectorObservations]],
+    params: &SelfCalParams,
+) -> Result<SelfCalResult, CalibrateError> {
+    let Some(projectors) = poses.first() else {
+        return Err(IllPosed::TooFewCorrespondences { projector: 0, sampled: 0 }.into());
+    };
+    let per_pose = SelfCalParams { max_points: params.max_points / poses.len(), ..params.clone() };
+    let mut samples = Vec::new();
+    for (i, pose) in poses.iter().enumerate() {
+        if pose.len() != projectors.len() {
+            return Err(
+                SolverError::PoseProjectors { pose: i, got: pose.len(), want: projectors.len() }.into()
+            );
+        }
+        samples.extend(subsample(cam, pose, &per_pose)?);
+    }
     let mut warnings = Vec::new();
     let (mut geo, homography_fraction) = initialise_all(cam, projectors, &samples, params, &mut warnings)?;
     common_scale(&mut geo, &samples)?;
@@ -561,6 +605,11 @@ pub fn self_calibrate(
         inliers: fit.inliers,
         iterations,
         conditioning,
+        per_projector_rms_px: fit
+            .per_projector
+            .iter()
+            .map(|(n, s2)| (s2 / (*n).max(1) as f64).sqrt())
+            .collect(),
         warnings,
     })
 }
@@ -616,13 +665,7 @@ fn initialise_all(
     for (k, p) in projectors.iter().enumerate() {
         let (cpx, ppx): (Vec<[f64; 2]>, Vec<[f64; 2]>) = samples
             .iter()
-            .filter_map(|s| {
-                s.obs.iter().find(|o| o.0 == k).map(|o| {
-                    let u = s.ray.x * cam.fx + cam.cx;
-                    let v = s.ray.y * cam.fy + cam.cy;
-                    ([u, v], o.1)
-                })
-            })
+            .filter_map(|s| s.obs.iter().find(|o| o.0 == k).map(|o| (pinhole_pixel(cam, &s.ray), o.1)))
             .unzip();
         if cpx.len() < 50 {
             return Err(IllPosed::TooFewCorrespondences { projector: k, sampled: cpx.len() }.into());
@@ -859,6 +902,8 @@ fn conditioning(
             cy_std_px: std(k * NP + 2),
             cx_std_data_only_px: cx_data_only(k),
             homography_fraction: homography_fraction[k],
+            rotation_std_deg: (3..6).map(|i| std(k * NP + i).powi(2)).sum::<f64>().sqrt().to_degrees(),
+            translation_std: (6..9).map(|i| std(k * NP + i).powi(2)).sum::<f64>().sqrt(),
         })
         .collect()
 }
@@ -933,7 +978,15 @@ pub(crate) mod tests {
     use super::*;
 
     pub(crate) fn test_camera() -> CameraIntrinsics {
-        CameraIntrinsics { width: 320, height: 240, fx: 400.0, fy: 400.0, cx: 159.5, cy: 119.5 }
+        CameraIntrinsics {
+            width: 320,
+            height: 240,
+            fx: 400.0,
+            fy: 400.0,
+            cx: 159.5,
+            cy: 119.5,
+            distortion: [0.0; 5],
+        }
     }
 
     /// A projector at `centre` (camera frame, mm) looking at `target`.
@@ -981,6 +1034,17 @@ pub(crate) mod tests {
         planar: bool,
         seed: u64,
     ) -> Vec<Vec<[f32; 2]>> {
+        synthetic_with(cam, truth, noise, seed, &|u, v| scene_depth(cam, u, v, planar))
+    }
+
+    /// Noisy correspondences of a scene given by its depth along each camera pixel's ray.
+    pub(crate) fn synthetic_with(
+        cam: &CameraIntrinsics,
+        truth: &[ProjectorGeometry],
+        noise: f64,
+        seed: u64,
+        depth: &dyn Fn(f64, f64) -> f64,
+    ) -> Vec<Vec<[f32; 2]>> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut gauss = move || {
             let (a, b): (f64, f64) = (rng.r#gen::<f64>().max(1e-12), rng.r#gen());
@@ -992,7 +1056,7 @@ pub(crate) mod tests {
                 let mut out = vec![[f32::NAN; 2]; (cam.width * cam.height) as usize];
                 for v in 0..cam.height {
                     for u in 0..cam.width {
-                        let z = scene_depth(cam, u as f64, v as f64, planar);
+                        let z = depth(u as f64, v as f64);
                         let x = camera_ray(cam, u as f64, v as f64) * z;
                         if let Some(p) = g.project(&x)
                             && p[0] >= -0.5
@@ -1124,6 +1188,55 @@ pub(crate) mod tests {
             .unwrap_err();
         assert!(matches!(err, CalibrateError::IllPosed(_)), "{err}");
         assert!(err.to_string().contains("planar"), "{err}");
+    }
+
+    /// Depth along pixel `(u, v)`'s ray of the plane `n . X = d` (a flat board in one pose).
+    fn board_depth(cam: &CameraIntrinsics, n: Vector3<f64>, d: f64) -> impl Fn(f64, f64) -> f64 {
+        move |u, v| d / n.dot(&camera_ray(cam, u, v))
+    }
+
+    #[test]
+    fn two_poses_of_a_flat_board_calibrate_the_rig_that_one_pose_cannot() {
+        // A camera with a real lens: the rays must be undistorted for the planes to stay planes.
+        let cam = CameraIntrinsics { distortion: [0.10, -0.19, -0.002, -0.003, 0.046], ..test_camera() };
+        let truth = three_projectors();
+        let tilts = [Vector3::new(0.25, 0.05, 1.0), Vector3::new(-0.15, 0.3, 1.0)];
+        let maps: Vec<Vec<Vec<[f32; 2]>>> = tilts
+            .iter()
+            .enumerate()
+            .map(|(i, n)| {
+                synthetic_with(&cam, &truth, 0.05, 20 + i as u64, &board_depth(&cam, n.normalize(), 950.0))
+            })
+            .collect();
+        let obs: Vec<Vec<ProjectorObservations>> = maps.iter().map(|m| observations(&truth, m)).collect();
+        let params = SelfCalParams { max_points: 4000, ..Default::default() };
+        for one in &obs {
+            let err = self_calibrate(&cam, one, &params).unwrap_err();
+            assert!(err.to_string().contains("planar"), "{err}");
+        }
+        let poses: Vec<&[ProjectorObservations]> = obs.iter().map(Vec::as_slice).collect();
+        let res = self_calibrate_poses(&cam, &poses, &params).unwrap();
+        let scale =
+            scale_for(&res.projectors, &KnownLength::Baseline { projector: 0, mm: truth[0].centre().norm() })
+                .unwrap();
+        assert!(res.rms_px < 0.1, "rms {}", res.rms_px);
+        for (g, t) in res.projectors.iter().zip(&truth) {
+            assert!((g.f - t.f).abs() / t.f < 0.005, "f {} vs {}", g.f, t.f);
+            assert!((g.cy - t.cy).abs() < 3.0, "cy {} vs {}", g.cy, t.cy);
+            assert!((g.cx - t.cx).abs() < 3.0, "cx {} vs {}", g.cx, t.cx);
+            assert!(
+                (g.centre() * scale - t.centre()).norm() < 2.0,
+                "centre {} vs {}",
+                g.centre() * scale,
+                t.centre()
+            );
+            let dr = Rotation3::from_matrix(&(g.rotation * t.rotation.transpose())).angle();
+            assert!(dr.to_degrees() < 0.1, "rotation off by {} deg", dr.to_degrees());
+        }
+        // The same boards read through a pinhole camera (the lens ignored) do not fit as well.
+        let pinhole = CameraIntrinsics { distortion: [0.0; 5], ..cam.clone() };
+        let bent = self_calibrate_poses(&pinhole, &poses, &params).map_or(f64::INFINITY, |r| r.rms_px);
+        assert!(bent > 5.0 * res.rms_px, "ignoring the lens: rms {bent} vs {}", res.rms_px);
     }
 
     #[test]

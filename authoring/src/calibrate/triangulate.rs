@@ -52,7 +52,7 @@ impl DenseGeometry {
 
 /// Depth along `ray` from the observations (projector, pixel), least squares in projector
 /// pixels; returns the depth and each observation's residual.
-fn solve_depth(
+pub(crate) fn solve_depth(
     geo: &[ProjectorGeometry],
     ray: &Vector3<f64>,
     obs: &[(usize, [f64; 2])],
@@ -243,6 +243,68 @@ pub fn normals_from_points(w: usize, h: usize, points: &[[f32; 3]], r: usize) ->
         .collect()
 }
 
+/// The largest plane among the points (found by RANSAC, refitted by least squares): what
+/// fraction of the points lie within 0.5 % of the median depth of it, and their RMS distance
+/// from it. A flat board triangulated with the right rig comes out flat.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlaneFit {
+    pub fraction: f64,
+    pub rms: f64,
+    pub normal: Vector3<f64>,
+}
+
+pub fn largest_plane(points: &[[f32; 3]], seed: u64) -> PlaneFit {
+    use rand::{Rng, SeedableRng};
+    let pts: Vec<Vector3<f64>> = points
+        .iter()
+        .filter(|p| p[2].is_finite())
+        .map(|p| Vector3::new(p[0] as f64, p[1] as f64, p[2] as f64))
+        .collect();
+    let none = PlaneFit { fraction: 0.0, rms: f64::NAN, normal: Vector3::zeros() };
+    if pts.len() < 3 {
+        return none;
+    }
+    let step = (pts.len() / 5000).max(1);
+    let sample: Vec<Vector3<f64>> = pts.iter().step_by(step).copied().collect();
+    let mut z: Vec<f64> = sample.iter().map(|p| p.z).collect();
+    let mid = z.len() / 2;
+    let threshold = 0.005 * z.select_nth_unstable_by(mid, f64::total_cmp).1.abs();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut best: Option<(usize, Vector3<f64>, f64)> = None;
+    for _ in 0..300 {
+        let [a, b, c] = [0; 3].map(|_| sample[rng.gen_range(0..sample.len())]);
+        let n = (b - a).cross(&(c - a));
+        if n.norm() < 1e-12 {
+            continue;
+        }
+        let n = n.normalize();
+        let d = n.dot(&a);
+        let count = sample.iter().filter(|p| (n.dot(p) - d).abs() < threshold).count();
+        if best.is_none_or(|b| count > b.0) {
+            best = Some((count, n, d));
+        }
+    }
+    let Some((_, mut n, mut d)) = best else { return none };
+    // Two least-squares refits on the inliers (smallest eigenvector of their scatter).
+    for _ in 0..2 {
+        let inl: Vec<&Vector3<f64>> = pts.iter().filter(|p| (n.dot(p) - d).abs() < threshold).collect();
+        if inl.len() < 3 {
+            return none;
+        }
+        let c = inl.iter().fold(Vector3::zeros(), |s, p| s + **p) / inl.len() as f64;
+        let scatter = inl.iter().fold(Matrix3::zeros(), |s, p| s + (**p - c) * (**p - c).transpose());
+        let eig = SymmetricEigen::new(scatter);
+        n = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+        d = n.dot(&c);
+    }
+    let dist: Vec<f64> = pts.iter().map(|p| (n.dot(p) - d).abs()).filter(|&e| e < threshold).collect();
+    PlaneFit {
+        fraction: dist.len() as f64 / pts.len() as f64,
+        rms: (dist.iter().map(|e| e * e).sum::<f64>() / dist.len().max(1) as f64).sqrt(),
+        normal: n,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -287,5 +349,27 @@ mod tests {
         assert!(d.valid > 60_000, "valid {}", d.valid);
         assert!(errs[errs.len() / 2] < 0.2, "median depth error {}", errs[errs.len() / 2]);
         assert!(angles[angles.len() / 2] < 2.0, "median normal error {}", angles[angles.len() / 2]);
+    }
+
+    #[test]
+    fn the_largest_plane_is_found_among_clutter() {
+        // A tilted board (2/3 of the points, 0.1 mm noise) in front of a sphere-ish bump.
+        let mut pts = Vec::new();
+        for i in 0..60 {
+            for j in 0..60 {
+                let (x, y) = (i as f64 * 5.0 - 150.0, j as f64 * 5.0 - 150.0);
+                let noise = 0.1 * (((i * 7 + j * 13) % 11) as f64 / 5.0 - 1.0);
+                pts.push([x as f32, y as f32, (1000.0 + 0.3 * x - 0.2 * y + noise) as f32]);
+                if (i + j) % 2 == 0 {
+                    pts.push([x as f32, y as f32, (800.0 + 0.002 * (x * x + y * y)) as f32]);
+                }
+            }
+        }
+        pts.push([f32::NAN; 3]);
+        let fit = largest_plane(&pts, 3);
+        assert!((fit.fraction - 2.0 / 3.0).abs() < 0.02, "{fit:?}");
+        assert!(fit.rms < 0.1, "{fit:?}");
+        let n = Vector3::new(-0.3, 0.2, 1.0).normalize();
+        assert!(fit.normal.dot(&n).abs() > 0.9999, "{fit:?}");
     }
 }

@@ -97,6 +97,10 @@ pub fn calibrate(args: &steps::calibrate::CalibrateArgs) -> Result<()> {
     with_bar(|p| steps::calibrate::run(args, p)).map(|_| ())
 }
 
+pub fn rig(args: &steps::rig::RigArgs) -> Result<()> {
+    with_bar(|p| steps::rig::run(args, p)).map(|_| ())
+}
+
 /// The demo keeps the terminal to a screen: the steps' summary, a count of the warnings and
 /// where to look next; every detail goes to `demo.log` in its folder.
 pub fn demo(args: &steps::demo::Args) -> Result<()> {

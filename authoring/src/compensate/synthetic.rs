@@ -105,6 +105,7 @@ pub fn build(spec: &SyntheticSpec) -> SyntheticStage {
         fy: fx,
         cx: (cw as f64 - 1.0) / 2.0,
         cy: (ch as f64 - 1.0) / 2.0,
+        distortion: [0.0; 5],
     };
     let kn = spec.projectors;
     let mut projectors = Vec::with_capacity(kn);

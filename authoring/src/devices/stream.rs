@@ -323,7 +323,15 @@ mod tests {
 
     #[test]
     fn stale_frames_are_dropped_and_fresh_ones_averaged() {
-        let cam = CameraIntrinsics { width: 2, height: 2, fx: 1.0, fy: 1.0, cx: 1.0, cy: 1.0 };
+        let cam = CameraIntrinsics {
+            width: 2,
+            height: 2,
+            fx: 1.0,
+            fy: 1.0,
+            cx: 1.0,
+            cy: 1.0,
+            distortion: [0.0; 5],
+        };
         let src = Scripted { queue: VecDeque::from(vec![0; 3]), level: 0, depth: 3 };
         let cfg = GrabConfig { average: 2, response: CameraResponse::Linear };
         let mut camera = StreamCamera::new(src, cam.clone(), cfg).unwrap();

@@ -147,7 +147,15 @@ mod tests {
     use crate::capture_set::CameraIntrinsics;
 
     fn model() -> StageModel {
-        let cam = CameraIntrinsics { width: 3, height: 1, fx: 100.0, fy: 100.0, cx: 1.0, cy: 0.0 };
+        let cam = CameraIntrinsics {
+            width: 3,
+            height: 1,
+            fx: 100.0,
+            fy: 100.0,
+            cx: 1.0,
+            cy: 0.0,
+            distortion: [0.0; 5],
+        };
         let p = ProjectorModel {
             width: 100,
             height: 80,

@@ -221,7 +221,15 @@ mod tests {
             .collect();
         let ramp: Vec<f32> = (0..256).map(|v| v as f32 / 255.0).collect();
         StageModel {
-            camera: CameraIntrinsics { width: w, height: h, fx: 10.0, fy: 10.0, cx: 6.0, cy: 5.0 },
+            camera: CameraIntrinsics {
+                width: w,
+                height: h,
+                fx: 10.0,
+                fy: 10.0,
+                cx: 6.0,
+                cy: 5.0,
+                distortion: [0.0; 5],
+            },
             projectors: vec![ProjectorModel {
                 width: 6,
                 height: 5,

@@ -25,6 +25,7 @@ use thiserror::Error;
 use self::geometry::{Part, Profile, Scene, Solid, V3};
 use self::optics::{CameraSpec, Integrator, ProjectorSpec, SimProjector};
 use self::paint::{Design, Deterioration, Palette};
+use self::paint::{PANEL_RADIUS_MM, PANEL_THICKNESS_MM, PANEL_UNROLL_MM};
 use crate::acquire::{self, AcquireConfig, AcquireError};
 use crate::capture_set::{CameraIntrinsics, CaptureManifest};
 use crate::hw::{Camera, DiffuseLight, HwError, ProjectorOutput};
@@ -42,8 +43,10 @@ pub const PROJECTOR_COUNT_RANGE: std::ops::RangeInclusive<u32> = 1..=8;
 
 #[derive(Debug, Error)]
 pub enum StageSimError {
-    #[error("unknown scene {name:?} (expected one of: vase, bowl, jar)")]
+    #[error("unknown scene {name:?} (expected one of: vase, bowl, jar, panel)")]
     UnknownScene { name: String },
+    #[error("the virtual stage has no {0}")]
+    Unsupported(String),
     #[error("{what} resolution {width}x{height} is out of range (expected {min}..={max} on each side)")]
     Resolution { what: &'static str, width: u32, height: u32, min: u32, max: u32 },
     #[error("projector count {0} is out of range (expected 1..=8)")]
@@ -83,16 +86,23 @@ pub enum SceneName {
     Vase,
     Bowl,
     Jar,
+    /// A flat painted panel (a painting, a tile) tilted back like on an easel: planar, so its
+    /// capture calibrates only through a saved rig.
+    Panel,
 }
 
 impl SceneName {
+    /// The round objects, which the evaluations run over.
     pub const ALL: [SceneName; 3] = [SceneName::Vase, SceneName::Bowl, SceneName::Jar];
+    /// Every built-in scene.
+    pub const NAMED: [SceneName; 4] = [SceneName::Vase, SceneName::Bowl, SceneName::Jar, SceneName::Panel];
 
     pub fn profile(self) -> Profile {
         match self {
             SceneName::Vase => Profile::Vase,
             SceneName::Bowl => Profile::Bowl,
             SceneName::Jar => Profile::Jar,
+            SceneName::Panel => Profile::Cylinder { radius: PANEL_RADIUS_MM, height: PANEL_THICKNESS_MM },
         }
     }
 
@@ -101,6 +111,7 @@ impl SceneName {
             SceneName::Vase => Design::Vase,
             SceneName::Bowl => Design::Bowl,
             SceneName::Jar => Design::Jar,
+            SceneName::Panel => Design::Panel,
         }
     }
 
@@ -109,6 +120,7 @@ impl SceneName {
             SceneName::Vase => "vase",
             SceneName::Bowl => "bowl",
             SceneName::Jar => "jar",
+            SceneName::Panel => "panel",
         }
     }
 }
@@ -116,7 +128,7 @@ impl SceneName {
 impl FromStr for SceneName {
     type Err = StageSimError;
     fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::ALL
+        Self::NAMED
             .into_iter()
             .find(|n| n.name() == s.to_ascii_lowercase())
             .ok_or_else(|| StageSimError::UnknownScene { name: s.into() })
@@ -182,6 +194,11 @@ impl SceneConfig {
         if !PROJECTOR_COUNT_RANGE.contains(&self.projectors) {
             return Err(StageSimError::ProjectorCount(self.projectors));
         }
+        if self.plinth && self.scene == SceneName::Panel {
+            return Err(StageSimError::Unsupported(
+                "panel on a plinth (a panel hangs or stands on an easel)".into(),
+            ));
+        }
         Ok(())
     }
 }
@@ -235,8 +252,16 @@ impl Setup {
         let (centre, up) = object_axis();
         let profile = cfg.scene.profile();
         let height = profile.height();
-        let base = centre - up * (height * 0.5);
-        let solid = Solid::new(profile, base, up, -centre);
+        let (solid, painted_height) = if cfg.scene == SceneName::Panel {
+            // The panel faces the camera, tilted back 15 degrees and turned 8 degrees to the side.
+            let normal = nalgebra::Rotation3::from_euler_angles(-15f64.to_radians(), 8f64.to_radians(), 0.0)
+                * V3::new(0.0, 0.0, -1.0);
+            let base = centre - normal * (height * 0.5);
+            (Solid::new(profile, base, normal, V3::new(1.0, 0.0, 0.0)), 2.0 * PANEL_RADIUS_MM)
+        } else {
+            (Solid::new(profile, centre - up * (height * 0.5), up, -centre), height)
+        };
+        let base = solid.base;
         let mut solids = vec![solid];
         let plinth = cfg.plinth.then(|| {
             solids.push(Solid::new(
@@ -267,7 +292,7 @@ impl Setup {
             scene: Scene { solids },
             design: cfg.scene.design(),
             deterioration: if cfg.deteriorate {
-                Deterioration::generate(cfg.seed, height)
+                Deterioration::generate(cfg.seed, painted_height)
             } else {
                 Deterioration::none()
             },
@@ -1144,12 +1169,20 @@ fn surface(setup: &Setup, palette: &Palette, hit: &geometry::Hit) -> PixelTruth 
         };
     }
     let solid = &setup.scene.solids[hit.solid];
-    let (h, _, theta) = solid.local(&hit.point);
-    let r = solid.radius_at(h);
-    let pristine = match hit.part {
-        Part::Side => setup.design.class_at(theta, h, r),
+    let (mut h, _, mut theta) = solid.local(&hit.point);
+    let mut r = solid.radius_at(h);
+    let pristine = match (hit.part, setup.design) {
+        // A panel is painted on its face, unrolled onto a cylinder (see `PANEL_UNROLL_MM`).
+        (Part::Top, Design::Panel) => {
+            let d = hit.point - solid.base;
+            (theta, h, r) =
+                (d.dot(&solid.e1) / PANEL_UNROLL_MM, d.dot(&solid.e2) + PANEL_RADIUS_MM, PANEL_UNROLL_MM);
+            setup.design.class_at(theta, h, r)
+        }
+        (Part::Side, Design::Panel) => palette.clay,
+        (Part::Side, _) => setup.design.class_at(theta, h, r),
         // The caps are unpainted clay (the camera rarely sees them).
-        Part::Bottom | Part::Top => palette.clay,
+        (Part::Bottom | Part::Top, _) => palette.clay,
     };
     let (albedo, label, wear) = setup.deterioration.apply(palette, pristine, theta, h, r);
     let albedo_pristine = palette.classes[pristine as usize].albedo;

@@ -398,6 +398,7 @@ impl CameraSpec {
             fy: f,
             cx: (width as f64 - 1.0) * 0.5 + 0.011 * width as f64,
             cy: (height as f64 - 1.0) * 0.5 - 0.007 * height as f64,
+            distortion: [0.0; 5],
         }
     }
 }

@@ -47,15 +47,27 @@ pub enum Design {
     Bowl,
     /// Bands, zig-zag and checker-dots on the shoulder; 5 colours.
     Jar,
+    /// A flat painted panel (a rosette of petals, rings, dots and a border), drawn on the
+    /// panel's face unrolled as a cylinder of radius [`PANEL_UNROLL_MM`] (see `class_at`);
+    /// 4 colours.
+    Panel,
     /// One uniform colour, for closed-form tests.
     Uniform,
 }
+
+/// Radius of the cylinder a flat panel's face is unrolled onto, so that the designs and the
+/// deterioration, written in (azimuth, height) on a solid of revolution, paint a plane too:
+/// face point `(x, y)` is azimuth `x / PANEL_UNROLL_MM`, height `y + PANEL_RADIUS_MM`.
+pub const PANEL_UNROLL_MM: f64 = 100.0;
+/// The panel's radius (a round panel, 12 mm thick).
+pub const PANEL_RADIUS_MM: f64 = 160.0;
+pub const PANEL_THICKNESS_MM: f64 = 12.0;
 
 impl Design {
     pub fn palette(self) -> Palette {
         let clay = class("clay", [150, 96, 66]);
         let mut classes = match self {
-            Design::Vase => vec![
+            Design::Vase | Design::Panel => vec![
                 class("slip", [226, 206, 170]),
                 class("black", [48, 38, 34]),
                 class("red", [168, 52, 38]),
@@ -146,6 +158,44 @@ impl Design {
                     if (f > 0.28 && f < 0.42) && (s - col * 24.0).hypot(h - row * 24.0) < 4.5 {
                         return 2;
                     }
+                }
+                0
+            }
+            Design::Panel => {
+                // Back on the face: x along the unrolled azimuth, y up from the centre.
+                let (x, y) = (s, h - PANEL_RADIUS_MM);
+                let rho = x.hypot(y);
+                let phi = y.atan2(x);
+                if (140.0..148.0).contains(&rho) {
+                    return 1;
+                }
+                if (120.0..126.0).contains(&rho) {
+                    return 2;
+                }
+                if rho < 25.0 {
+                    return 3;
+                }
+                if rho < 29.0 {
+                    return 1;
+                }
+                if (40.0..105.0).contains(&rho) {
+                    // Eight petals, red and black in turn, widest half-way out.
+                    let k = (phi / (TAU / 8.0)).round();
+                    let off = rho * (phi - k * TAU / 8.0).sin();
+                    if off.abs() < 3.0 + 9.0 * (std::f64::consts::PI * (rho - 40.0) / 65.0).sin() {
+                        return if (k as i64).rem_euclid(2) == 0 { 2 } else { 1 };
+                    }
+                    // A thin black ring through the petals.
+                    if (rho - 72.0).abs() < 1.0 {
+                        return 1;
+                    }
+                }
+                // Ochre dots every 15 degrees between the red ring and the border.
+                let k = (phi / 15f64.to_radians()).round();
+                let (dx, dy) =
+                    (133.0 * (k * 15f64.to_radians()).cos(), 133.0 * (k * 15f64.to_radians()).sin());
+                if (x - dx).hypot(y - dy) < 4.0 {
+                    return 3;
                 }
                 0
             }
@@ -422,7 +472,7 @@ mod tests {
 
     #[test]
     fn designs_use_their_palettes_and_leave_out_clay() {
-        for d in [Design::Vase, Design::Bowl, Design::Jar] {
+        for d in [Design::Vase, Design::Bowl, Design::Jar, Design::Panel] {
             let p = d.palette();
             assert!((3..=5).contains(&(p.classes.len() - 1)), "{d:?}");
             let mut seen = vec![false; p.classes.len()];

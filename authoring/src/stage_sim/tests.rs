@@ -13,7 +13,7 @@ const H: u32 = 48;
 const LUX: f64 = 450.0;
 
 fn camera() -> CameraIntrinsics {
-    CameraIntrinsics { width: W, height: H, fx: 80.0, fy: 80.0, cx: 31.5, cy: 23.5 }
+    CameraIntrinsics { width: W, height: H, fx: 80.0, fy: 80.0, cx: 31.5, cy: 23.5, distortion: [0.0; 5] }
 }
 
 /// A flat board through (0, 0, 1000) whose normal is the camera's -z turned by `tilt_deg`

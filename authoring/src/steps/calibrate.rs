@@ -7,9 +7,11 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::Args;
+use restage_authoring::calibrate::CalibrateError;
 use restage_authoring::calibrate::geometry::{self, GeometryOptions, GeometryReport};
 use restage_authoring::calibrate::lux::LuxReadings;
 use restage_authoring::calibrate::photometric;
+use restage_authoring::calibrate::rig::Rig;
 use restage_authoring::calibrate::selfcal::KnownLength;
 use restage_authoring::calibrate::transport::SnapParams;
 use restage_authoring::calibrate::{ply, report};
@@ -33,8 +35,9 @@ pub struct CalibrateArgs {
     /// The one length that fixes the scale: the distance in millimetres from the camera's
     /// centre of projection (its lens) to the lens of projector --known-projector, measured
     /// with a tape. Everything else is calibrated from the images.
-    #[arg(long)]
-    pub known_distance_mm: f64,
+    /// With --rig: optional, it rescales the rig (needed when the rig has no length).
+    #[arg(long, required_unless_present = "rig")]
+    pub known_distance_mm: Option<f64>,
     /// Which projector --known-distance-mm refers to.
     #[arg(long, default_value_t = 0)]
     pub known_projector: usize,
@@ -46,6 +49,19 @@ pub struct CalibrateArgs {
     /// orientation and an ambient reading (see `calibrate::lux`).
     #[arg(long)]
     pub lux_file: Option<PathBuf>,
+    /// A rig calibrated once with `restage-author rig` (its rig.json or folder): the geometry is
+    /// triangulated with it instead of self-calibrated from this capture, so flat objects
+    /// (paintings, panels) calibrate too. A projector moved since is named and refused.
+    #[arg(long)]
+    pub rig: Option<PathBuf>,
+}
+
+/// Where the projectors' geometry comes from.
+pub enum GeometrySource {
+    /// Self-calibration from this capture, scaled by the measured length.
+    SelfCalibrate(KnownLength),
+    /// A saved rig (`path` for messages), rescaled by the length if one is given.
+    Rig { rig: Rig, path: PathBuf, known: Option<KnownLength> },
 }
 
 /// Runs calibration; the demo calls this too. Without lux readings only the geometry is
@@ -53,7 +69,7 @@ pub struct CalibrateArgs {
 pub fn calibrate(
     capture: &Path,
     out: &Path,
-    known: KnownLength,
+    source: GeometrySource,
     lux: Option<&LuxReadings>,
     progress: &dyn Progress,
 ) -> Result<GeometryReport> {
@@ -61,7 +77,11 @@ pub fn calibrate(
     // Step 1: the capture set.
     let manifest = CaptureManifest::load(capture)?;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
-    let options = GeometryOptions::new(known);
+    let options = match &source {
+        GeometrySource::SelfCalibrate(known) => GeometryOptions::new(known.clone()),
+        // The length is the rig's; this one is never used.
+        GeometrySource::Rig { .. } => GeometryOptions::new(KnownLength::Baseline { projector: 0, mm: 1.0 }),
+    };
 
     // Step 2: decode structured light, projector by projector.
     progress.stage("decoding");
@@ -82,10 +102,31 @@ pub fn calibrate(
         );
     }
 
-    // Step 3: self-calibrate all projectors jointly, scale, triangulate.
-    progress.stage("self-calibrating and triangulating");
-    let (mut model, report, dense, _) = geometry::solve_geometry(&manifest, &decodes, &options)
-        .with_context(|| format!("calibrating {}", capture.display()))?;
+    // Step 3: self-calibrate all projectors jointly, scale, triangulate (or, with a saved rig,
+    // check it still holds and triangulate with it).
+    let (mut model, report, dense) = match &source {
+        GeometrySource::SelfCalibrate(_) => {
+            progress.stage("self-calibrating and triangulating");
+            let (model, report, dense, _) = geometry::solve_geometry(&manifest, &decodes, &options)
+                .map_err(|e| match e {
+                    CalibrateError::IllPosed(_) => anyhow::Error::new(e).context(
+                        "a flat object (a painting, a panel) cannot calibrate the rig by itself: calibrate the \
+                         rig once with `restage-author rig` (a round object, or two or more poses of a flat \
+                         board) and pass --rig",
+                    ),
+                    e => e.into(),
+                })
+                .with_context(|| format!("calibrating {}", capture.display()))?;
+            (model, report, dense)
+        }
+        GeometrySource::Rig { rig, path, known } => {
+            progress.stage("checking the rig and triangulating");
+            geometry::solve_with_rig(&manifest, &decodes, rig, path, known.as_ref(), &options.triangulate)
+                .with_context(|| {
+                    format!("calibrating {} with the rig {}", capture.display(), path.display())
+                })?
+        }
+    };
 
     // Step 4: light transport (refining the correspondences), responses, vignetting, black
     // levels, lux and gain.
@@ -189,19 +230,31 @@ fn save(model: &StageModel, out: &Path) -> Result<()> {
 /// Runs the step as its arguments say.
 pub fn run(args: &CalibrateArgs, progress: &dyn Progress) -> Result<GeometryReport> {
     // Everything that can be checked is checked before the minutes of decoding.
-    let mm = args.known_distance_mm;
-    if !(mm.is_finite() && mm > 0.0) {
+    if let Some(mm) = args.known_distance_mm
+        && !(mm.is_finite() && mm > 0.0)
+    {
         anyhow::bail!(
             "--known-distance-mm {mm}: expected the camera-to-projector lens distance in millimetres, \
              a positive number (e.g. 600)"
         );
     }
     super::check_out(&args.out, args.overwrite.force)?;
-    let known = KnownLength::Baseline { projector: args.known_projector, mm: args.known_distance_mm };
+    let known =
+        args.known_distance_mm.map(|mm| KnownLength::Baseline { projector: args.known_projector, mm });
+    let source = match (&args.rig, known) {
+        (Some(path), known) => {
+            let rig = Rig::load(path)?;
+            // A rig without a length needs one now: say so before the minutes of decoding.
+            rig.geometry(known.as_ref())?;
+            GeometrySource::Rig { rig, path: path.clone(), known }
+        }
+        (None, Some(known)) => GeometrySource::SelfCalibrate(known),
+        (None, None) => anyhow::bail!("--known-distance-mm is needed without --rig"),
+    };
     let lux = match (&args.lux_white, &args.lux_file) {
         (Some(text), _) => Some(LuxReadings::parse(text)?),
         (None, Some(path)) => Some(LuxReadings::load(path)?),
         (None, None) => None,
     };
-    calibrate(&args.capture, &args.out, known, lux.as_ref(), progress)
+    calibrate(&args.capture, &args.out, source, lux.as_ref(), progress)
 }

@@ -42,7 +42,7 @@ pub struct DecodeArgs {
     pub camera_intrinsics: Option<[f64; 4]>,
 }
 
-fn parse_intrinsics(s: &str) -> Result<[f64; 4], String> {
+pub fn parse_intrinsics(s: &str) -> Result<[f64; 4], String> {
     let v: Vec<f64> = s
         .split(',')
         .map(|x| x.trim().parse::<f64>())
@@ -93,7 +93,8 @@ pub fn run(args: &DecodeArgs, progress: &dyn Progress) -> Result<Vec<DecodeQuali
         let d = decode::decode_projector(&images, 0, pw, ph, &params)?;
         decode::save_maps(&d, 0, pw, ph, &args.out)?;
         if let Some([fx, fy, cx, cy]) = args.camera_intrinsics {
-            let cam = CameraIntrinsics { width: first.0, height: first.1, fx, fy, cx, cy };
+            let cam =
+                CameraIntrinsics { width: first.0, height: first.1, fx, fy, cx, cy, distortion: [0.0; 5] };
             selfcal_check(&cam, &d, pw, ph, &args.out)?;
         }
         qualities.push(d.quality);
@@ -184,7 +185,7 @@ fn selfcal_check(
 }
 
 /// PNG files of a folder in file-name order.
-fn image_files(dir: &Path) -> Result<Vec<PathBuf>> {
+pub fn image_files(dir: &Path) -> Result<Vec<PathBuf>> {
     let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
         .with_context(|| format!("reading folder {}", dir.display()))?
         .filter_map(|e| e.ok().map(|e| e.path()))

@@ -123,7 +123,13 @@ pub fn run(args: &Args, progress: &dyn Progress) -> Result<ChainSummary> {
         lux.reference_pixel,
         lux.white.iter().map(|(k, v)| format!("{k}={v:.1}")).collect::<Vec<_>>().join(",")
     );
-    let report = super::calibrate::calibrate(&capture_dir, &stage_dir, known, Some(&lux), progress)?;
+    let report = super::calibrate::calibrate(
+        &capture_dir,
+        &stage_dir,
+        super::calibrate::GeometrySource::SelfCalibrate(known),
+        Some(&lux),
+        progress,
+    )?;
     tracing::info!(
         "step 2 (calibrate) done at {:.1} s: {} points, reprojection RMS {:.3} px, {}",
         start.elapsed().as_secs_f64(),

@@ -21,6 +21,7 @@ pub mod relight;
 pub mod render;
 pub mod report;
 pub mod restore;
+pub mod rig;
 pub mod simulate;
 pub mod verify;
 

@@ -58,7 +58,8 @@ impl PatternArgs {
 // Negative numbers are values, to be refused with a clear message rather than taken for flags.
 #[command(allow_negative_numbers = true)]
 pub struct Args {
-    /// Built-in object: vase, bowl or jar.
+    /// Built-in object: vase, bowl or jar, or a flat painted panel (calibrates only through a
+    /// saved rig: `restage-author rig`).
     #[arg(long, default_value = "vase")]
     pub scene: String,
     /// Seed for the deterioration, the projectors' radiometry and the camera noise.

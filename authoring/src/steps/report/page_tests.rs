@@ -97,6 +97,8 @@ fn example() -> Inputs {
         cy_std_px: 2.1,
         cx_std_data_only_px: f64::NAN,
         homography_fraction: 0.2,
+        rotation_std_deg: 0.01,
+        translation_std: 0.2,
     };
     let photometry = |k: usize| ProjectorPhotometry {
         correspondences_disagreeing: 0,
@@ -135,6 +137,7 @@ fn example() -> Inputs {
             rejected_by_depth: 3,
             scale_mm: 612.5,
             conditioning: vec![conditioning(0), conditioning(1)],
+            rig_epipolar_median_px: Vec::new(),
             warnings: vec!["projector 1: few phase steps".into()],
         }),
         photometric: Some(PhotometricSummary {
