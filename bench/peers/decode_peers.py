@@ -20,7 +20,9 @@ Needs OpenCV (contrib, for structured_light) and numpy, as pinned in requirement
 Consistency ("inconsistent_pct_*"): the share of decoded pixels more than 2 projector px from the
 median of the decoded pixels in their 5x5 window (restage's `inconsistent` in decode.json), for
 the pixels both decode (the baseline) and those only restage decodes, in restage's map; and for
-OpenCV's own map.
+OpenCV's own map. restage's decode.json gives the same figure split by its own criterion (pixels
+read with no weak bit vs pixels kept with one: "decode_json_inconsistent_pct_*"); on a capture
+where OpenCV decodes exactly restage's no-weak-bit pixels the two splits agree.
 """
 import argparse
 import glob
@@ -125,6 +127,10 @@ def main():
     c_bad = inconsistent(cx, cy)
     pct = lambda bad, mask: round(100.0 * float(bad[mask].mean()), 4) if mask.any() else None
     common_pct, only_pct = pct(r_bad, both), pct(r_bad, only)
+    # decode.json written before the split lacks these fields: reported as None.
+    with open(os.path.join(a.restage_out, "decode.json")) as f:
+        quality = json.load(f)[0]
+    from_json = lambda key: round(100.0 * quality[key], 4) if key in quality else None
     summary = {
         "opencv_version": cv2.__version__,
         "pixels": int(cx.size),
@@ -144,6 +150,8 @@ def main():
         "inconsistent_pct_restage_only": only_pct,
         "restage_only_over_common": round(only_pct / common_pct, 2) if only_pct is not None and common_pct else None,
         "inconsistent_pct_opencv_own_map": pct(c_bad, cv_ok),
+        "decode_json_inconsistent_pct_confident": from_json("inconsistent_confident"),
+        "decode_json_inconsistent_pct_weak": from_json("inconsistent_weak"),
         "opencv_seconds": round(secs, 2),
     }
     json.dump(summary, sys.stdout, indent=2)

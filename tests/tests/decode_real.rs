@@ -72,6 +72,11 @@ fn extra_pixels_on_a_real_capture_are_as_consistent_as_the_common_ones() {
     assert_eq!(common.0, strict.decoded, "every pixel strict decodes is decoded by default");
     assert!(pct(extra) <= 2.0 * pct(common), "restage-only {} % vs common {} %", pct(extra), pct(common));
     assert!((q.inconsistent as f64 - (common.1 + extra.1) as f64 / q.decoded as f64).abs() < 1e-6, "{q:?}");
+    // decode.json's split (no weak bit vs weak bit kept) is the same split here: the pixels
+    // read with no weak bit are exactly OpenCV's.
+    assert!((100.0 * q.inconsistent_confident as f64 - pct(common)).abs() < 1e-4, "{q:?}");
+    assert!((100.0 * q.inconsistent_weak as f64 - pct(extra)).abs() < 1e-4, "{q:?}");
+    assert_eq!(q.one_weak_bit, extra.0, "{q:?}");
 }
 
 #[test]

@@ -116,6 +116,14 @@ pub struct DecodeQuality {
     /// decoded 5x5 neighbours (see [`inconsistent_fraction`]); 0 in files written before it.
     #[serde(default)]
     pub inconsistent: f32,
+    /// The same figure over the decoded pixels read with no weak bit (what OpenCV's decoder
+    /// also accepts; the baseline) ...
+    #[serde(default)]
+    pub inconsistent_confident: f32,
+    /// ... and over those kept with a weak bit after the neighbourhood check (the pixels only
+    /// restage decodes). Each is measured in the map of all decoded pixels; 0 for an empty set.
+    #[serde(default)]
+    pub inconsistent_weak: f32,
     /// Phase steps used per axis (0 when Gray code only).
     pub phase_steps: u32,
     pub phase_period: u32,
@@ -618,9 +626,29 @@ pub fn inconsistent_pixels(x: &[f32], y: &[f32], width: u32, height: u32) -> Vec
 
 /// The share of decoded pixels that [`inconsistent_pixels`] marks; 0 when nothing decoded.
 pub fn inconsistent_fraction(x: &[f32], y: &[f32], width: u32, height: u32) -> f32 {
-    let decoded = x.iter().zip(y).filter(|(a, b)| a.is_finite() && b.is_finite()).count();
-    let bad = inconsistent_pixels(x, y, width, height).iter().filter(|&&b| b).count();
-    if decoded == 0 { 0.0 } else { bad as f32 / decoded as f32 }
+    inconsistent_fractions(x, y, width, height, |_| true)[0]
+}
+
+/// [`inconsistent_fraction`] over all decoded pixels, over those `in_set` accepts and over the
+/// rest (0 for an empty set). The neighbours are all decoded pixels in every case, so the
+/// subsets' figures are those of the whole map, split.
+fn inconsistent_fractions(
+    x: &[f32],
+    y: &[f32],
+    width: u32,
+    height: u32,
+    in_set: impl Fn(usize) -> bool,
+) -> [f32; 3] {
+    let bad = inconsistent_pixels(x, y, width, height);
+    // (decoded, inconsistent) for all, in the set, not in it.
+    let mut n = [(0usize, 0usize); 3];
+    for i in (0..x.len()).filter(|&i| x[i].is_finite() && y[i].is_finite()) {
+        for k in [0, if in_set(i) { 1 } else { 2 }] {
+            n[k].0 += 1;
+            n[k].1 += usize::from(bad[i]);
+        }
+    }
+    n.map(|(d, b)| if d == 0 { 0.0 } else { b as f32 / d as f32 })
 }
 
 /// Why a lit pixel was not decoded. Each pixel has one reason, the first that applies in this
@@ -800,6 +828,10 @@ pub fn decode_projector(
         }
     }
     let decoded = margins.len();
+    // Decoded pixels read with no weak bit are the baseline: OpenCV's decoder accepts exactly
+    // these, so the weak-bit ones must be as consistent with their neighbours.
+    let [inconsistent, inconsistent_confident, inconsistent_weak] =
+        inconsistent_fractions(&x, &y, width, height, |i| !any_weak(i));
     let median_relative_margin = if margins.is_empty() {
         0.0
     } else {
@@ -818,7 +850,9 @@ pub fn decode_projector(
         phase_rejected: count(Status::PhaseRejected),
         one_weak_bit,
         two_weak_bits,
-        inconsistent: inconsistent_fraction(&x, &y, width, height),
+        inconsistent,
+        inconsistent_confident,
+        inconsistent_weak,
         phase_steps: phase.map_or(0, |p| p.1),
         phase_period: phase.map_or(0, |p| p.0),
         linearised: response.is_some() && phase.is_some(),
@@ -857,8 +891,14 @@ pub fn decode_projector(
 /// projector size is suspect (a few do at the image's edges through blur and noise).
 const OUT_OF_RANGE_WARN: f64 = 0.05;
 
-/// A warning when many codes fall outside the projector: the size given is probably wrong,
-/// most often transposed. Says so when the swapped size would fit (nearly) all of them.
+/// Below [`OUT_OF_RANGE_WARN`], out-of-range codes still mean a transposed size when at least
+/// this share is out of range and the swapped size puts [`TRANSPOSED_RATIO`] times fewer out:
+/// a scene that covers only part of the projector leaves few out of range either way.
+const TRANSPOSED_MIN: f64 = 0.01;
+const TRANSPOSED_RATIO: usize = 10;
+
+/// A warning when many codes fall outside the projector, or when the transposed size fits the
+/// codes much better: the size given is probably wrong, most often transposed.
 fn out_of_range_warning(
     projector: u32,
     cx: &AxisCodes,
@@ -869,24 +909,23 @@ fn out_of_range_warning(
 ) -> Option<String> {
     let readable: Vec<usize> =
         (0..status.len()).filter(|&i| !matches!(status[i], Status::Unlit | Status::Weak)).collect();
+    let n = readable.len() as f64;
     let out = readable.iter().filter(|&&i| status[i] == Status::OutOfRange).count();
-    if readable.is_empty() || (out as f64) <= OUT_OF_RANGE_WARN * readable.len() as f64 {
+    // The codes only mean the same under the swapped size when each axis has as many bits.
+    let swapped_out = (gray_bits(pw) == gray_bits(ph))
+        .then(|| readable.iter().filter(|&&i| cx.code[i] >= ph || cy.code[i] >= pw).count());
+    let transposed = swapped_out.is_some_and(|s| s * TRANSPOSED_RATIO <= out);
+    if out == 0 || !(out as f64 > OUT_OF_RANGE_WARN * n || (transposed && out as f64 >= TRANSPOSED_MIN * n)) {
         return None;
     }
-    let pct = 100.0 * out as f64 / readable.len() as f64;
+    let pct = 100.0 * out as f64 / n;
     let mut msg = format!(
         "projector {projector}: {out} of {} readable pixels ({pct:.1} %) decode outside the {pw}x{ph} projector; \
          is the size right, or transposed ({ph}x{pw})?",
         readable.len()
     );
-    // The codes only mean the same under the swapped size when each axis has as many bits.
-    if gray_bits(pw) == gray_bits(ph) {
-        let swapped_out = readable.iter().filter(|&&i| cx.code[i] >= ph || cy.code[i] >= pw).count();
-        if (swapped_out as f64) < 0.01 * readable.len() as f64 {
-            msg.push_str(&format!(
-                " With {ph}x{pw} only {swapped_out} would be out of range: the size looks transposed."
-            ));
-        }
+    if let Some(s) = swapped_out.filter(|_| transposed) {
+        msg.push_str(&format!(" With {ph}x{pw} only {s} would be out of range: the size looks transposed."));
     }
     Some(msg)
 }
@@ -1275,6 +1314,10 @@ mod tests {
             "{:?}",
             loose.quality
         );
+        // ... and it is one of the three weak-bit pixels, none of the confident ones.
+        let lq = &loose.quality;
+        assert_eq!((lq.inconsistent_weak, lq.inconsistent_confident), (1.0 / 3.0, 0.0), "{lq:?}");
+        assert_eq!((q.inconsistent_weak, q.inconsistent_confident), (0.0, 0.0), "{q:?}");
     }
 
     #[test]
@@ -1330,6 +1373,25 @@ mod tests {
     }
 
     #[test]
+    fn a_transposed_size_is_warned_when_few_codes_fall_outside() {
+        // The scene covers projector columns 0..49.4 of 64 only: read as 48x64, 4 % of the
+        // pixels land outside (below the 5 % that warns by itself), 64x48 puts none outside.
+        let part = |u: u32, v: u32| Some((u as f64 * 49.4 / 119.0, v as f64 * 47.0 / 99.0));
+        let pats = standard_patterns(64, 48, 8, 0);
+        let imgs = render((120, 100), (64, 48), &part, &pats, 1.0, 0.001, 10);
+        let right = decode_projector(&imgs, 0, 64, 48, &DecodeParams::default()).unwrap();
+        assert!(!right.quality.warnings.iter().any(|w| w.contains("outside")), "{:?}", right.quality);
+        let q = decode_projector(&imgs, 0, 48, 64, &DecodeParams::default()).unwrap().quality;
+        let share = q.out_of_range as f64 / (q.lit - q.weak) as f64;
+        assert!((0.01..OUT_OF_RANGE_WARN).contains(&share), "{share} {q:?}");
+        let w = q.warnings.iter().find(|w| w.contains("outside the 48x64 projector")).expect("warned");
+        assert!(
+            w.contains("With 64x48 only 0 would be out of range") && w.contains("looks transposed"),
+            "{w}"
+        );
+    }
+
+    #[test]
     fn consistency_counts_outliers_and_loners() {
         // A 6x6 smooth map with one outlier and one decoded pixel whose neighbours are not.
         let (mut x, mut y): (Vec<f32>, Vec<f32>) =
@@ -1338,6 +1400,9 @@ mod tests {
         let mask = inconsistent_pixels(&x, &y, 6, 6);
         assert_eq!(mask.iter().filter(|&&b| b).count(), 1);
         assert!(mask[14]);
+        // Split: the outlier alone in the set, then the 35 others (none inconsistent).
+        assert_eq!(inconsistent_fractions(&x, &y, 6, 6, |i| i == 14), [1.0 / 36.0, 1.0, 0.0]);
+        assert_eq!(inconsistent_fractions(&x, &y, 6, 6, |i| i < 18), [1.0 / 36.0, 1.0 / 18.0, 0.0]);
         let mut lone = vec![f32::NAN; 36];
         lone[0] = 1.0;
         assert_eq!(inconsistent_fraction(&lone, &lone, 6, 6), 1.0);
@@ -1352,6 +1417,7 @@ mod tests {
             "median_relative_margin":null,"warnings":[]}"#;
         let q: DecodeQuality = serde_json::from_str(old).unwrap();
         assert_eq!((q.decoded, q.weak_inconsistent, q.two_weak_bits, q.inconsistent), (8, 0, 0, 0.0));
+        assert_eq!((q.inconsistent_confident, q.inconsistent_weak), (0.0, 0.0));
     }
 
     proptest! {

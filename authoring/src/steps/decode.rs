@@ -130,11 +130,14 @@ pub fn run(args: &DecodeArgs, progress: &dyn Progress) -> Result<Vec<DecodeQuali
         }
         tracing::info!(
             "projector {}: {} of {} pixels decoded, {:.3} % inconsistent with their neighbours \
+             ({:.3} % of those read with no weak bit, {:.3} % of those kept with one) \
              ({} lit, {} of them faint, {} weak, {} out of range, {} phase-rejected, {} weak and inconsistent)",
             q.projector,
             q.decoded,
             q.pixels,
             100.0 * q.inconsistent,
+            100.0 * q.inconsistent_confident,
+            100.0 * q.inconsistent_weak,
             q.lit,
             q.faint,
             q.weak,
