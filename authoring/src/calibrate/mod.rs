@@ -9,6 +9,7 @@ pub mod photometric;
 pub mod ply;
 pub mod radiometry;
 pub mod report;
+pub mod response;
 pub mod selfcal;
 pub mod transport;
 pub mod triangulate;
