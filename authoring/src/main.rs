@@ -24,6 +24,8 @@ enum Command {
     Capture(steps::capture::CaptureArgs),
     /// Calibrate the stage: capture set in, stage model out, with a PNG report and a PLY model.
     Calibrate(steps::calibrate::CalibrateArgs),
+    /// Import a capture made with any camera: 8-bit images in a pattern order, per exposure time.
+    Import(steps::import::ImportArgs),
     /// Decode structured light to correspondence maps (our captures or OpenCV's order).
     Decode(steps::decode::DecodeArgs),
     /// Compare a step's output with the virtual stage's ground truth (table and JSON).
@@ -79,6 +81,7 @@ fn run(command: Command) -> Result<()> {
         Command::Capture(args) => cli::capture(&args),
         Command::Calibrate(args) => cli::calibrate(&args),
         Command::Decode(args) => cli::decode(&args),
+        Command::Import(args) => cli::import(&args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Simulate(args) => cli::simulate(&args),
         Command::Demo(args) => cli::demo(&args),
