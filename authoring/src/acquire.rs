@@ -73,38 +73,49 @@ impl AcquireConfig {
 /// The shots for one projector of `width x height`, in capture order, with file names
 /// relative to the capture directory.
 pub fn plan(projector: usize, width: u32, height: u32, cfg: &AcquireConfig) -> Vec<Shot> {
-    let dir = format!("proj{projector}");
-    let mut shots = Vec::new();
-    let mut add = |pattern: Pattern, name: String| {
-        shots.push(Shot { pattern, file: format!("{dir}/{name}.png").into() })
-    };
-    add(Pattern::White, "white".into());
-    add(Pattern::Black, "black".into());
-    for (axis, tag, extent) in [(Axis::X, 'x', width), (Axis::Y, 'y', height)] {
+    let mut patterns = vec![Pattern::White, Pattern::Black];
+    for (axis, extent) in [(Axis::X, width), (Axis::Y, height)] {
         for bit in 0..gray_bits(extent) {
-            add(Pattern::GrayCode { axis, bit, inverted: false }, format!("gray_{tag}{bit:02}"));
-            add(Pattern::GrayCode { axis, bit, inverted: true }, format!("gray_{tag}{bit:02}_inv"));
+            for inverted in [false, true] {
+                patterns.push(Pattern::GrayCode { axis, bit, inverted });
+            }
         }
     }
-    for (axis, tag) in [(Axis::X, 'x'), (Axis::Y, 'y')] {
+    for axis in [Axis::X, Axis::Y] {
         for step in 0..cfg.phase_steps {
-            add(
-                Pattern::Phase { axis, period: cfg.phase_period, step, steps: cfg.phase_steps },
-                format!("phase_{tag}{step:02}"),
-            );
+            patterns.push(Pattern::Phase { axis, period: cfg.phase_period, step, steps: cfg.phase_steps });
         }
     }
     for dy in 0..cfg.dot_spacing {
         for dx in 0..cfg.dot_spacing {
-            add(Pattern::Dots { spacing: cfg.dot_spacing, dx, dy }, format!("dots_{dx:02}_{dy:02}"));
+            patterns.push(Pattern::Dots { spacing: cfg.dot_spacing, dx, dy });
         }
     }
-    for (channel, tag) in [(0u8, 'r'), (1, 'g'), (2, 'b')] {
+    for channel in 0..3u8 {
         for level in patterns::ramp_levels(cfg.ramp_levels) {
-            add(Pattern::Ramp { channel, level }, format!("ramp_{tag}{level:03}"));
+            patterns.push(Pattern::Ramp { channel, level });
         }
     }
-    shots
+    patterns.into_iter().map(|pattern| shot(projector, pattern)).collect()
+}
+
+/// The shot of `pattern` for projector `projector`: its file `proj<k>/<name>.png`, the one
+/// naming every writer of capture sets uses (acquisition and import).
+pub fn shot(projector: usize, pattern: Pattern) -> Shot {
+    let axis = |a: Axis| if a == Axis::X { 'x' } else { 'y' };
+    let name = match &pattern {
+        Pattern::White => "white".to_string(),
+        Pattern::Black => "black".to_string(),
+        Pattern::GrayCode { axis: a, bit, inverted } => {
+            format!("gray_{}{bit:02}{}", axis(*a), if *inverted { "_inv" } else { "" })
+        }
+        Pattern::Phase { axis: a, step, .. } => format!("phase_{}{step:02}", axis(*a)),
+        Pattern::Dots { dx, dy, .. } => format!("dots_{dx:02}_{dy:02}"),
+        Pattern::Ramp { channel, level } => {
+            format!("ramp_{}{level:03}", ['r', 'g', 'b', 'w'][(*channel as usize).min(3)])
+        }
+    };
+    Shot { pattern, file: format!("proj{projector}/{name}.png").into() }
 }
 
 /// File of the diffusely lit photo.

@@ -14,6 +14,7 @@ pub mod export;
 pub mod gpu;
 pub mod hw;
 pub mod imgio;
+pub mod import;
 pub mod patterns;
 pub mod relight;
 pub mod restore;

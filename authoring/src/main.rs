@@ -27,6 +27,8 @@ enum Command {
     /// Calibrate the rig once (projector intrinsics and poses) from captures through it: a
     /// non-planar scene or two or more poses of a flat board; `calibrate --rig` then uses it.
     Rig(steps::rig::RigArgs),
+    /// Import a capture made with any camera: 8-bit images in a pattern order, per exposure time.
+    Import(steps::import::ImportArgs),
     /// Decode structured light to correspondence maps (our captures or OpenCV's order).
     Decode(steps::decode::DecodeArgs),
     /// Compare a step's output with the virtual stage's ground truth (table and JSON).
@@ -83,6 +85,7 @@ fn run(command: Command) -> Result<()> {
         Command::Calibrate(args) => cli::calibrate(&args),
         Command::Rig(args) => cli::rig(&args),
         Command::Decode(args) => cli::decode(&args),
+        Command::Import(args) => cli::import(&args),
         Command::Eval(args) => cli::eval::run(args),
         Command::Simulate(args) => cli::simulate(&args),
         Command::Demo(args) => cli::demo(&args),

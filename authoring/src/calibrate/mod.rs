@@ -10,6 +10,7 @@ pub mod ply;
 pub mod radiometry;
 pub mod report;
 pub mod rig;
+pub mod response;
 pub mod selfcal;
 pub mod transport;
 pub mod triangulate;

@@ -93,6 +93,10 @@ pub fn decode(args: &steps::decode::DecodeArgs) -> Result<()> {
     with_bar(|p| steps::decode::run(args, p)).map(|_| ())
 }
 
+pub fn import(args: &steps::import::ImportArgs) -> Result<()> {
+    with_bar(|p| steps::import::run(args, p)).map(|_| ())
+}
+
 pub fn calibrate(args: &steps::calibrate::CalibrateArgs) -> Result<()> {
     with_bar(|p| steps::calibrate::run(args, p)).map(|_| ())
 }

@@ -7,6 +7,7 @@
 //! where the projector cannot see the point), so each capture is a cheap gather.
 
 pub mod bounce;
+pub mod foreign;
 pub mod geometry;
 pub mod optics;
 pub mod paint;
@@ -27,6 +28,7 @@ use self::optics::{CameraSpec, Integrator, ProjectorSpec, SimProjector};
 use self::paint::{Design, Deterioration, Palette};
 use self::paint::{PANEL_RADIUS_MM, PANEL_THICKNESS_MM, PANEL_UNROLL_MM};
 use crate::acquire::{self, AcquireConfig, AcquireError};
+use crate::calibrate::response::Bracket;
 use crate::capture_set::{CameraIntrinsics, CaptureManifest};
 use crate::hw::{Camera, DiffuseLight, HwError, ProjectorOutput};
 use crate::imgio::{ImageError, LinearImage};
@@ -67,6 +69,8 @@ pub enum StageSimError {
     Truth { path: PathBuf, problem: String },
     #[error("lux meter at camera pixel {pixel:?}: {problem}")]
     LuxMeter { pixel: [u32; 2], problem: String },
+    #[error("the virtual camera has no 8-bit output (set CameraSpec::codes for exposure brackets)")]
+    NoCodeCamera,
 }
 
 /// The simulated lux-meter readings: where the meter was held and one reading (lux) per
@@ -988,6 +992,14 @@ impl VirtualStage {
     /// A pixel integrates over its area: where that spans a geometric edge, each sub-sample
     /// adds its own albedo times its own irradiance (sub-samples that see nothing add 0).
     pub fn render(&self, frames: &[RgbImage], diffuse: bool) -> Result<LinearImage, StageSimError> {
+        let mut img = self.render_unclipped(frames, diffuse)?;
+        img.data.iter_mut().for_each(|p| *p = p.map(|c| c.min(1.0)));
+        Ok(img)
+    }
+
+    /// [`render`](Self::render) without the clip at full scale: the light an exposure of any
+    /// length integrates (exposure brackets scale it, then saturate).
+    pub fn render_unclipped(&self, frames: &[RgbImage], diffuse: bool) -> Result<LinearImage, StageSimError> {
         let e = self.total_lux(frames)?;
         let room = self.setup.stray_lux + if diffuse { self.setup.diffuse_lux } else { 0.0 };
         let k = self.setup.camera_spec.gain_per_lux;
@@ -996,9 +1008,7 @@ impl VirtualStage {
             .pixels
             .par_iter()
             .zip(e.pixel.par_iter())
-            .map(|(p, e)| {
-                [0, 1, 2].map(|c| ((k * p.albedo[c] as f64 * (e[c] as f64 + room)) as f32).min(1.0))
-            })
+            .map(|(p, e)| [0, 1, 2].map(|c| (k * p.albedo[c] as f64 * (e[c] as f64 + room)) as f32))
             .collect();
         for (i, range) in &self.sub.pixels {
             let mut v = [0.0f64; 3];
@@ -1007,7 +1017,7 @@ impl VirtualStage {
                     *v += self.sub.albedo[s][c] as f64 * (e.sub[s][c] as f64 + room);
                 }
             }
-            data[*i] = v.map(|v| ((k * v / SUB_COUNT as f64) as f32).min(1.0));
+            data[*i] = v.map(|v| (k * v / SUB_COUNT as f64) as f32);
         }
         Ok(LinearImage { width: cam.width, height: cam.height, data })
     }
@@ -1034,6 +1044,26 @@ impl VirtualStage {
             }
         });
         Ok(img)
+    }
+
+    /// Exposure brackets through the camera's 8-bit output (`CameraSpec::codes`), one per
+    /// exposure time in seconds, each with its own noise (from `shot` on).
+    pub fn brackets(
+        &self,
+        frames: &[RgbImage],
+        diffuse: bool,
+        exposures_s: &[f64],
+        shot: u64,
+    ) -> Result<Vec<Bracket>, StageSimError> {
+        let Some(cam) = &self.setup.camera_spec.codes else {
+            return Err(StageSimError::NoCodeCamera);
+        };
+        let linear = self.render_unclipped(frames, diffuse)?;
+        Ok(exposures_s
+            .iter()
+            .enumerate()
+            .map(|(j, &t)| cam.expose(&linear, t, mix(self.setup.seed, shot + j as u64)))
+            .collect())
     }
 
     /// Black frames for every projector.
@@ -1362,7 +1392,7 @@ fn point_light(light: &[[f32; 3]], p: &SimProjector, s: &Sample) -> [f64; 3] {
 }
 
 /// Mixes a seed and a counter into a new seed (SplitMix64 finaliser).
-fn mix(seed: u64, n: u64) -> u64 {
+pub(crate) fn mix(seed: u64, n: u64) -> u64 {
     let mut z = seed ^ n.wrapping_add(0x9E37_79B9_7F4A_7C15).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
     z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
@@ -1370,7 +1400,7 @@ fn mix(seed: u64, n: u64) -> u64 {
 }
 
 /// A standard normal sample (Box-Muller; one of the pair is enough here).
-fn normal(rng: &mut ChaCha8Rng) -> f64 {
+pub(crate) fn normal(rng: &mut ChaCha8Rng) -> f64 {
     let u1: f64 = rng.r#gen::<f64>().max(1e-300);
     let u2: f64 = rng.r#gen();
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()

@@ -1,6 +1,6 @@
 //! Projector and camera models of the virtual stage: pinhole projectors with lens shift,
 //! per-channel non-linear response, black level, vignetting and blur; a linear camera with
-//! gain and noise. Also the projector-space integrator the renderer samples (blurred linear
+//! gain and noise, optionally with an 8-bit non-linear output for exposure brackets. Also the projector-space integrator the renderer samples (blurred linear
 //! light, then a summed-area table so a camera pixel's footprint costs four lookups).
 
 use image::RgbImage;
@@ -11,7 +11,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::geometry::V3;
+use crate::calibrate::response::Bracket;
 use crate::capture_set::CameraIntrinsics;
+use crate::imgio::LinearImage;
 use crate::stage_model::ProjectorModel;
 
 /// How one projector is built: placement around the object and its optics and radiometry.
@@ -380,11 +382,104 @@ pub struct CameraSpec {
     /// Noise standard deviation: `sqrt(read^2 + shot * value)`, in 0..1 camera units.
     pub read_noise: f64,
     pub shot_noise: f64,
+    /// An 8-bit output through a non-linear response, for exposure brackets
+    /// (`VirtualStage::brackets`); captures through the hardware traits stay linear.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub codes: Option<CodeCamera>,
 }
 
 impl Default for CameraSpec {
     fn default() -> Self {
-        Self { focal_per_height: 2.4, gain_per_lux: 1.0 / 900.0, read_noise: 0.0008, shot_noise: 3.0e-5 }
+        Self {
+            focal_per_height: 2.4,
+            gain_per_lux: 1.0 / 900.0,
+            read_noise: 0.0008,
+            shot_noise: 3.0e-5,
+            codes: None,
+        }
+    }
+}
+
+/// A camera response that is neither linear nor sRGB: a power law with a filmic shoulder,
+/// per channel `v = (1 + s) u / (u + s)`, `u = x^(1/gamma)`, where `x` is the exposure
+/// relative to saturation (0..=1) and `v` the code over 255. Closed-form inverse.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ToneCurve {
+    pub gamma: [f64; 3],
+    /// Smaller is a stronger shoulder (more compression near saturation).
+    pub shoulder: [f64; 3],
+}
+
+impl ToneCurve {
+    /// The virtual camera's curve: channels differ a little, as a real camera's do.
+    pub fn filmic() -> Self {
+        Self { gamma: [2.0, 2.2, 1.8], shoulder: [0.8, 0.7, 1.0] }
+    }
+
+    /// Code over 255 (0..=1) for exposure `x` relative to saturation; saturates at `x >= 1`.
+    pub fn encode(&self, c: usize, x: f64) -> f64 {
+        let s = self.shoulder[c];
+        let u = x.clamp(0.0, 1.0).powf(1.0 / self.gamma[c]);
+        (1.0 + s) * u / (u + s)
+    }
+
+    /// Inverse of [`encode`](Self::encode): relative exposure for code over 255.
+    pub fn decode(&self, c: usize, v: f64) -> f64 {
+        let (s, v) = (self.shoulder[c], v.clamp(0.0, 1.0));
+        (s * v / (1.0 + s - v)).powf(self.gamma[c])
+    }
+
+    /// The true inverse response per channel at codes 0..=255, 1 at code 255: what response
+    /// recovery should find (up to scale).
+    pub fn inverse(&self) -> [Vec<f64>; 3] {
+        [0, 1, 2].map(|c| (0..256).map(|z| self.decode(c, z as f64 / 255.0)).collect())
+    }
+}
+
+/// An 8-bit camera: exposure time, the tone curve, quantisation to codes and saturation, with
+/// noise added to the exposure before the curve (as on a sensor, before the camera's
+/// processing).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CodeCamera {
+    pub curve: ToneCurve,
+    /// Exposure time (s) at which the linear camera's full scale (1.0) just saturates: the
+    /// relative exposure is `linear * time / saturation_s`.
+    pub saturation_s: f64,
+    /// Noise standard deviation `sqrt(read^2 + shot * x)`, in units of saturation exposure.
+    pub read_noise: f64,
+    pub shot_noise: f64,
+}
+
+impl Default for CodeCamera {
+    fn default() -> Self {
+        // A clean sensor (full well about 10^6 electrons): noise about 0.4 code at code 10
+        // (green) and 0.1 code near the top, so the 8-bit quantisation and saturation, not the
+        // sensor, limit the dynamic range.
+        Self { curve: ToneCurve::filmic(), saturation_s: 1.0, read_noise: 5.0e-6, shot_noise: 1.0e-6 }
+    }
+}
+
+impl CodeCamera {
+    /// One exposure of `linear` (unclipped linear camera values) for `exposure_s`, noise from
+    /// `seed` (per row, so the result does not depend on the thread count).
+    pub fn expose(&self, linear: &LinearImage, exposure_s: f64, seed: u64) -> Bracket {
+        let w = linear.width as usize;
+        let k = exposure_s / self.saturation_s;
+        let mut codes = vec![[0u8; 3]; linear.data.len()];
+        codes.par_chunks_mut(w).zip(linear.data.par_chunks(w)).enumerate().for_each(|(y, (out, row))| {
+            let mut rng = ChaCha8Rng::seed_from_u64(super::mix(seed, y as u64));
+            for (o, px) in out.iter_mut().zip(row) {
+                *o = [0, 1, 2].map(|c| {
+                    let x = px[c] as f64 * k;
+                    let sd = (self.read_noise.powi(2) + self.shot_noise * x.max(0.0)).sqrt();
+                    let x = x + sd * super::normal(&mut rng);
+                    (255.0 * self.curve.encode(c, x)).round() as u8
+                });
+            }
+        });
+        Bracket { width: linear.width, height: linear.height, codes, exposure_s }
     }
 }
 

@@ -15,6 +15,7 @@ pub mod compensate;
 pub mod decode;
 pub mod demo;
 pub mod demo_chain;
+pub mod import;
 pub mod keygen;
 pub mod mask;
 pub mod relight;
