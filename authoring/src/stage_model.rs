@@ -26,6 +26,8 @@ pub enum StageModelError {
     Version { path: PathBuf, found: u32 },
     #[error("{path}: corrupt stage model: {source}")]
     Decode { path: PathBuf, source: postcard::Error },
+    #[error("{path}: corrupt stage model: {bytes} unexpected bytes after it (a lens distortion is 40)")]
+    Trailing { path: PathBuf, bytes: usize },
     #[error("stage model is inconsistent: {0}")]
     Inconsistent(String),
 }
@@ -79,6 +81,9 @@ pub struct Transport {
 /// The calibrated stage.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StageModel {
+    /// In `stage.bin` as version 1 wrote it (a pinhole); a lens distortion follows the
+    /// postcard body (see [`StageModel::save`]).
+    #[serde(with = "pinhole_wire")]
     pub camera: CameraIntrinsics,
     pub projectors: Vec<ProjectorModel>,
     /// Per camera pixel (row-major): surface point in the camera frame, millimetres; NaN where
@@ -156,6 +161,10 @@ impl StageModel {
         let mut bytes = STAGE_MAGIC.to_vec();
         bytes.extend_from_slice(&STAGE_VERSION.to_le_bytes());
         bytes.extend(postcard::to_stdvec(self).expect("stage model serialises"));
+        // Version 1 had no lens distortion: it follows the body, so version-1 files still read.
+        if self.camera.distortion.iter().any(|&k| k != 0.0) {
+            bytes.extend(self.camera.distortion.iter().flat_map(|k| k.to_le_bytes()));
+        }
         std::fs::write(&path, bytes).map_err(|source| StageModelError::Io { path, source })
     }
 
@@ -170,10 +179,45 @@ impl StageModel {
         if found != STAGE_VERSION {
             return Err(StageModelError::Version { path, found });
         }
-        let model: Self =
-            postcard::from_bytes(&bytes[12..]).map_err(|source| StageModelError::Decode { path, source })?;
+        let (mut model, rest): (Self, &[u8]) = postcard::take_from_bytes(&bytes[12..])
+            .map_err(|source| StageModelError::Decode { path: path.clone(), source })?;
+        match rest.len() {
+            0 => {}
+            40 => {
+                for (k, b) in model.camera.distortion.iter_mut().zip(rest.chunks_exact(8)) {
+                    *k = f64::from_le_bytes(b.try_into().expect("8 bytes"));
+                }
+            }
+            n => return Err(StageModelError::Trailing { path, bytes: n }),
+        }
         model.validate()?;
         Ok(model)
+    }
+}
+
+/// The camera as `stage.bin` version 1 stores it: the six pinhole fields.
+mod pinhole_wire {
+    use serde::{Deserialize, Deserializer, Serialize, Serializer};
+
+    use crate::capture_set::CameraIntrinsics;
+
+    #[derive(Serialize, Deserialize)]
+    struct Pinhole {
+        width: u32,
+        height: u32,
+        fx: f64,
+        fy: f64,
+        cx: f64,
+        cy: f64,
+    }
+
+    pub(super) fn serialize<S: Serializer>(c: &CameraIntrinsics, s: S) -> Result<S::Ok, S::Error> {
+        Pinhole { width: c.width, height: c.height, fx: c.fx, fy: c.fy, cx: c.cx, cy: c.cy }.serialize(s)
+    }
+
+    pub(super) fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<CameraIntrinsics, D::Error> {
+        let p = Pinhole::deserialize(d)?;
+        Ok(CameraIntrinsics::pinhole(p.width, p.height, p.fx, p.fy, p.cx, p.cy))
     }
 }
 
@@ -260,6 +304,15 @@ mod tests {
         let back = StageModel::load(dir.path()).unwrap();
         assert_eq!(back.projectors, m.projectors);
         assert!(back.points[1][0].is_nan());
+        // A real lens's distortion comes back too (after the version-1 body).
+        let mut lens = m.clone();
+        lens.camera.distortion = [0.1, -0.2, 0.001, -0.002, 0.05];
+        lens.save(dir.path()).unwrap();
+        assert_eq!(StageModel::load(dir.path()).unwrap().camera, lens.camera);
+        let mut bytes = std::fs::read(dir.path().join(STAGE_FILE)).unwrap();
+        bytes.pop();
+        std::fs::write(dir.path().join(STAGE_FILE), bytes).unwrap();
+        assert!(matches!(StageModel::load(dir.path()), Err(StageModelError::Trailing { bytes: 39, .. })));
     }
 
     #[test]

@@ -247,7 +247,8 @@ impl Rig {
                 "projector {k}: median epipolar residual {m:.3} px against the rig ({:.3} px when calibrated)",
                 p.epipolar_median_px
             );
-            if !(m <= MOVED_MIN_PX.max(MOVED_FACTOR * p.epipolar_median_px)) {
+            // NaN (the projector sees nothing here) has nothing to check.
+            if m > MOVED_MIN_PX.max(MOVED_FACTOR * p.epipolar_median_px) {
                 moved.push(format!(
                     "projector {k} lies {m:.2} px off the epipolar lines the rig predicts ({:.2} px when calibrated)",
                     p.epipolar_median_px
@@ -266,7 +267,7 @@ impl Rig {
                 MOVED_MIN_PX.max(MOVED_FACTOR * self.projectors[j].rms_px.max(self.projectors[k].rms_px))
             };
             let bad: Vec<(usize, usize, f64)> =
-                pairs.iter().copied().filter(|&(j, k, m)| !(m <= limit(j, k))).collect();
+                pairs.iter().copied().filter(|&(j, k, m)| m > limit(j, k)).collect();
             for &(j, k, m) in &pairs {
                 tracing::info!("projectors {j} and {k}: median two-view residual {m:.3} px against the rig");
             }

@@ -61,7 +61,7 @@ pub enum GeometrySource {
     /// Self-calibration from this capture, scaled by the measured length.
     SelfCalibrate(KnownLength),
     /// A saved rig (`path` for messages), rescaled by the length if one is given.
-    Rig { rig: Rig, path: PathBuf, known: Option<KnownLength> },
+    Rig { rig: Box<Rig>, path: PathBuf, known: Option<KnownLength> },
 }
 
 /// Runs calibration; the demo calls this too. Without lux readings only the geometry is
@@ -246,7 +246,7 @@ pub fn run(args: &CalibrateArgs, progress: &dyn Progress) -> Result<GeometryRepo
             let rig = Rig::load(path)?;
             // A rig without a length needs one now: say so before the minutes of decoding.
             rig.geometry(known.as_ref())?;
-            GeometrySource::Rig { rig, path: path.clone(), known }
+            GeometrySource::Rig { rig: Box::new(rig), path: path.clone(), known }
         }
         (None, Some(known)) => GeometrySource::SelfCalibrate(known),
         (None, None) => anyhow::bail!("--known-distance-mm is needed without --rig"),
