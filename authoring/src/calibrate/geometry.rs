@@ -187,18 +187,13 @@ fn build_model(
         .zip(decodes)
         .map(|(g, d)| {
             let curve = d.response.clone().unwrap_or_else(|| (0..256).map(|v| v as f32 / 255.0).collect());
-            let r = g.rotation;
             ProjectorModel {
                 width: g.width,
                 height: g.height,
                 f: g.f,
                 cx: g.cx,
                 cy: g.cy,
-                rotation: [
-                    [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
-                    [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
-                    [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
-                ],
+                rotation: g.rotation_rows(),
                 translation: [g.translation.x, g.translation.y, g.translation.z],
                 response: [curve.clone(), curve.clone(), curve],
                 black: [0.0; 3],

@@ -158,7 +158,6 @@ impl Rig {
                     .iter()
                     .flat_map(|c| epipolar_residuals(first.camera, g, &c.decodes[k].pairs()))
                     .collect();
-                let r = g.rotation;
                 let mut conditioning = cal.conditioning[k].clone();
                 conditioning.translation_std *= scale;
                 RigProjector {
@@ -167,11 +166,7 @@ impl Rig {
                     f: g.f,
                     cx: g.cx,
                     cy: g.cy,
-                    rotation: [
-                        [r[(0, 0)], r[(0, 1)], r[(0, 2)]],
-                        [r[(1, 0)], r[(1, 1)], r[(1, 2)]],
-                        [r[(2, 0)], r[(2, 1)], r[(2, 2)]],
-                    ],
+                    rotation: g.rotation_rows(),
                     translation: [g.translation.x, g.translation.y, g.translation.z],
                     conditioning,
                     rms_px: cal.per_projector_rms_px[k],
