@@ -3,6 +3,9 @@
 //! the CLI: the pixels restage decodes beyond OpenCV's are as consistent with their
 //! neighbours as the ones both decode.
 //!
+//! And the rig from both poses of the board (`rig --chessboard`), against the calibration the
+//! data's authors made with OpenCV (`sample_data/calibration_result.xml` in their repository).
+//!
 //! `--strict` (reject every weak bit, as OpenCV does) decodes exactly OpenCV's pixels on this
 //! capture (`bench/peers/decode_peers.py`: 735,662 on pose 0, identical values), so it stands in
 //! for OpenCV here, which the tests cannot depend on.
@@ -95,4 +98,67 @@ fn mistaken_inputs_get_messages_that_say_what_to_do() {
     assert!(!ok && err.contains("--projector-size") && err.contains("zero side"), "{err}");
     let (ok, err) = run(&["--opencv-order", "--projector-size", "768x1024", "--out", out, "--force"]);
     assert!(ok && err.contains("768x1024") && err.contains("looks transposed"), "{err}");
+}
+
+/// `rig --chessboard` on the two real poses: Moreno-Taubin corners and Zhang, camera calibrated
+/// too. OpenCV's calibration of the same images by the data's authors (calibrateCamera and
+/// stereoCalibrate, 5 distortion terms each) gives the camera fx 3452.4, fy 3449.9 px and the
+/// projector's centre (-30.4, 206.6, 50.1) mm in the camera frame at 25 mm squares. Their
+/// projector intrinsics (f 3954, cy 1358 on a 768-row projector) are not a reference: two poses
+/// cannot carry 5 distortion terms per device.
+#[test]
+fn the_real_rig_calibrates_from_two_poses_of_its_chessboard() {
+    let (Some(a), Some(b)) = (pose("capture"), pose("capture_1")) else { return };
+    let dir = tempfile::tempdir().unwrap();
+    let rig_cli = |out: &str, extra: &[&str]| {
+        Command::new(author_bin())
+            .args(["rig", "--opencv-order", "--projector-size", "1024x768", "--chessboard", "9x7"])
+            .args(["--square-mm", "25", "--out"])
+            .arg(dir.path().join(out))
+            .args([&a, &b])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let run = rig_cli("board", &[]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let rig = restage_authoring::calibrate::rig::Rig::load(&dir.path().join("board")).unwrap();
+    let fit = rig.board.as_ref().unwrap();
+    let p = &rig.projectors[0];
+    let s = &p.conditioning;
+    eprintln!(
+        "camera fx {:.1} fy {:.1} ({:.3} px RMS); projector f {:.1} +- {:.1}, cy {:.1} +- {:.1} ({:.3} px RMS), \
+         centre {:?}, epipolar median {:.3} px",
+        rig.camera.fx,
+        rig.camera.fy,
+        fit.camera_rms_px,
+        p.f,
+        s.f_std_px,
+        p.cy,
+        s.cy_std_px,
+        p.rms_px,
+        p.geometry().centre(),
+        p.epipolar_median_px
+    );
+    assert_eq!((fit.poses, fit.projector_corners[0] >= 80), (2, true), "{fit:?}");
+    assert!(fit.camera_rms_px < 0.5 && p.rms_px < 0.5, "{fit:?} {}", p.rms_px);
+    assert!((rig.camera.fx / 3452.4 - 1.0).abs() < 0.01 && (rig.camera.fy / 3449.9 - 1.0).abs() < 0.01);
+    assert!(s.f_std_px < 0.01 * p.f && s.cy_std_px < 0.02 * 768.0 && s.cx_std_px < 0.02 * 1024.0, "{s:?}");
+    let c = p.geometry().centre();
+    assert!((c.x + 30.4).abs() < 10.0 && (c.y - 206.6).abs() < 10.0 && (c.z - 50.1).abs() < 40.0, "{c}");
+    // Every decoded pixel (not only the corners) lies on the rig's epipolar lines.
+    assert!(p.epipolar_median_px < 1.0, "{}", p.epipolar_median_px);
+
+    // The camera of the folder's camera_config.json is another camera (it says 960 rows, the
+    // images have 1024): held fixed, the board refuses it rather than bend the projector.
+    let wrong = rig_cli(
+        "wrong",
+        &[
+            "--camera-intrinsics",
+            "744.28,741.75,634.20,473.02",
+            "--camera-distortion=0.1041,-0.193,-0.0024,-0.0037,0.046",
+        ],
+    );
+    assert!(!wrong.status.success());
+    assert!(String::from_utf8_lossy(&wrong.stderr).contains("do not determine projector 0"));
 }

@@ -2,6 +2,7 @@
 //! transport, projector responses, per-pixel gain and ambient, lux scale. One submodule per
 //! step; the `calibrate` command runs them in sequence.
 
+pub mod board;
 pub mod decode;
 pub mod geometry;
 pub mod lux;
@@ -107,6 +108,8 @@ pub enum CalibrateError {
          rig again (`restage-author rig`)"
     )]
     RigMoved { moved: String },
+    #[error("board calibration: {0}")]
+    Board(#[from] board::BoardError),
     #[error("known length: {0}")]
     KnownLength(String),
     #[error("cannot write {path}: {source}")]

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
+use super::board::{Board, BoardCalibration};
 use super::decode::ProjectorDecode;
 use super::selfcal::{
     self, Conditioning, KnownLength, ProjectorGeometry, ProjectorObservations, SelfCalParams,
@@ -70,6 +71,28 @@ pub struct Rig {
     pub captures: Vec<String>,
     pub warnings: Vec<String>,
     pub provenance: String,
+    /// How a rig solved from a printed chessboard was fitted (absent for a self-calibrated one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub board: Option<BoardFit>,
+}
+
+/// A board calibration's figures: the board, the camera's uncertainty (the camera is
+/// calibrated too unless it was given) and the corner residuals.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BoardFit {
+    /// Inner corners across and down, and the side of a square (mm).
+    pub cols: u32,
+    pub rows: u32,
+    pub square_mm: f64,
+    pub poses: usize,
+    /// Standard deviations of the camera's fx, fy, cx, cy (px), k1, k2; zero when given.
+    pub camera_std: [f64; 6],
+    /// RMS reprojection error of the corners in the camera (px).
+    #[serde(deserialize_with = "nan_if_null")]
+    pub camera_rms_px: f64,
+    /// Per projector: corners it carried over all poses.
+    pub projector_corners: Vec<usize>,
 }
 
 /// One capture's decoded correspondences, as the rig solver takes them.
@@ -187,7 +210,65 @@ impl Rig {
                 env!("CARGO_PKG_VERSION"),
                 captures.len()
             ),
+            board: None,
         })
+    }
+
+    /// The rig of a board calibration ([`super::board::calibrate`]) of `captures`, with each
+    /// projector's epipolar residual over all their decoded pixels (not only the corners).
+    pub fn from_board(captures: &[RigCapture], board: &Board, cal: BoardCalibration) -> Self {
+        let projectors = cal
+            .projectors
+            .iter()
+            .enumerate()
+            .map(|(k, g)| {
+                let residuals: Vec<f64> = captures
+                    .iter()
+                    .flat_map(|c| epipolar_residuals(&cal.camera, g, &c.decodes[k].pairs()))
+                    .collect();
+                RigProjector {
+                    width: g.width,
+                    height: g.height,
+                    f: g.f,
+                    cx: g.cx,
+                    cy: g.cy,
+                    rotation: g.rotation_rows(),
+                    translation: [g.translation.x, g.translation.y, g.translation.z],
+                    conditioning: cal.conditioning[k].clone(),
+                    rms_px: cal.projector_rms_px[k],
+                    epipolar_median_px: median(residuals),
+                }
+            })
+            .collect();
+        let n: usize = cal.projector_corners.iter().sum();
+        let sum2: f64 =
+            cal.projector_rms_px.iter().zip(&cal.projector_corners).map(|(r, &c)| r * r * c as f64).sum();
+        Self {
+            version: RIG_VERSION,
+            camera: cal.camera,
+            units: RigUnits::Millimetres,
+            projectors,
+            rms_px: (sum2 / n.max(1) as f64).sqrt(),
+            captures: captures.iter().map(|c| c.name.clone()).collect(),
+            warnings: Vec::new(),
+            provenance: format!(
+                "restage rig {} from {} poses of a {}x{} chessboard ({} mm squares)",
+                env!("CARGO_PKG_VERSION"),
+                captures.len(),
+                board.cols,
+                board.rows,
+                board.square_mm
+            ),
+            board: Some(BoardFit {
+                cols: board.cols,
+                rows: board.rows,
+                square_mm: board.square_mm,
+                poses: cal.poses.len(),
+                camera_std: cal.camera_std,
+                camera_rms_px: cal.camera_rms_px,
+                projector_corners: cal.projector_corners,
+            }),
+        }
     }
 
     /// Every projector's geometry, translations in millimetres: the rig's own scale, or

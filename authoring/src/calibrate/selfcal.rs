@@ -214,7 +214,7 @@ fn sampson(f: &Matrix3<f64>, c: [f64; 2], p: [f64; 2]) -> f64 {
 }
 
 /// Homography `x_p ~ H x_c` from at least 4 pairs (normalised DLT).
-fn homography(cam: &[[f64; 2]], proj: &[[f64; 2]]) -> Matrix3<f64> {
+pub(crate) fn homography(cam: &[[f64; 2]], proj: &[[f64; 2]]) -> Matrix3<f64> {
     let (t1, t2) = (normaliser(cam), normaliser(proj));
     let rows = cam.iter().zip(proj).flat_map(|(a, b)| {
         let (a, b) = (apply(&t1, *a), apply(&t2, *b));
