@@ -101,7 +101,7 @@ pub fn find_corners(
             break;
         }
     }
-    let [(u0, v0, bw, bh)] = blocks[..] else { return Err(not_found(det.corners.len().min(want))) };
+    let [(u0, v0, bw, bh)] = blocks[..] else { return Err(not_found(det.corners.len())) };
     let inside = |c: &&calib_targets_chessboard::ChessboardCorner| {
         (u0..u0 + bw).contains(&c.grid.u) && (v0..v0 + bh).contains(&c.grid.v)
     };

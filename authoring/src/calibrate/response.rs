@@ -257,6 +257,17 @@ fn sample_pixels(brackets: &[Bracket], c: usize, want: usize) -> Vec<usize> {
     out
 }
 
+/// Sample `i`'s usable observations in channel `c`: (code, squared hat weight, ln Δt) per
+/// bracket where the code is neither black nor saturated. Fills `obs` (reused between samples).
+fn observations(brackets: &[Bracket], ln_t: &[f64], i: usize, c: usize, obs: &mut Vec<(usize, f64, f64)>) {
+    obs.clear();
+    obs.extend(brackets.iter().zip(ln_t).filter_map(|(b, &lt)| {
+        let z = b.codes[i][c];
+        let w = hat(z);
+        (w > 0.0).then_some((z as usize, w * w, lt))
+    }));
+}
+
 /// Solves one channel: the log radiances of the samples only meet `g` through their own
 /// rows, so they are eliminated in closed form (Schur complement) and a 256x256 system is
 /// left. Returns `g` and the RMS data residual (ln units).
@@ -271,12 +282,7 @@ fn solve_channel(
     let mut rhs = DVector::<f64>::zeros(CODES);
     let mut obs: Vec<(usize, f64, f64)> = Vec::with_capacity(brackets.len());
     for &i in samples {
-        obs.clear();
-        obs.extend(brackets.iter().zip(&ln_t).filter_map(|(b, &lt)| {
-            let z = b.codes[i][c];
-            let w = hat(z);
-            (w > 0.0).then_some((z as usize, w * w, lt))
-        }));
+        observations(brackets, &ln_t, i, c, &mut obs);
         // Normal equations of the rows `w (g(z) - x_i) = w ln Δt`: G gets w² on the diagonal,
         // the x_i block is the scalar d = Σ w², and the coupling is -w².
         let d: f64 = obs.iter().map(|o| o.1).sum();
@@ -311,12 +317,7 @@ fn solve_channel(
     // Residual: each sample's ln E is the weighted mean of g(z) - ln Δt over its brackets.
     let (mut sum, mut weight) = (0.0, 0.0);
     for &i in samples {
-        obs.clear();
-        obs.extend(brackets.iter().zip(&ln_t).filter_map(|(b, &lt)| {
-            let z = b.codes[i][c];
-            let w = hat(z);
-            (w > 0.0).then_some((z as usize, w * w, lt))
-        }));
+        observations(brackets, &ln_t, i, c, &mut obs);
         let d: f64 = obs.iter().map(|o| o.1).sum();
         let x = obs.iter().map(|o| o.1 * (g[o.0] - o.2)).sum::<f64>() / d;
         for &(z, w, lt) in &obs {

@@ -250,6 +250,11 @@ pub fn run(args: &RigArgs, progress: &dyn Progress) -> Result<Rig> {
     {
         bail!("--known-distance-mm {mm}: expected the camera-to-projector lens distance in millimetres");
     }
+    if let Some(s) = args.square_mm
+        && !(s.is_finite() && s > 0.0)
+    {
+        bail!("--square-mm {s}: expected the side of one printed square in millimetres");
+    }
     super::check_out(&args.out, args.overwrite.force)?;
     let params = if args.opencv_order { DecodeParams::opencv_defaults() } else { DecodeParams::default() };
     let mut decoded = Vec::new();
