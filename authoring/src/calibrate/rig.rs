@@ -120,6 +120,32 @@ pub fn bright_maps(decodes: &[ProjectorDecode], min_contrast: f32) -> Vec<Vec<[f
 }
 
 impl RigProjector {
+    /// Projector `k` of a solved rig, with its epipolar residual over all the captures'
+    /// decoded pixels (the yardstick of the moved check).
+    fn new(
+        camera: &CameraIntrinsics,
+        g: &ProjectorGeometry,
+        captures: &[RigCapture],
+        k: usize,
+        conditioning: Conditioning,
+        rms_px: f64,
+    ) -> Self {
+        let residuals: Vec<f64> =
+            captures.iter().flat_map(|c| epipolar_residuals(camera, g, &c.decodes[k].pairs())).collect();
+        Self {
+            width: g.width,
+            height: g.height,
+            f: g.f,
+            cx: g.cx,
+            cy: g.cy,
+            rotation: g.rotation_rows(),
+            translation: [g.translation.x, g.translation.y, g.translation.z],
+            conditioning,
+            rms_px,
+            epipolar_median_px: median(residuals),
+        }
+    }
+
     pub fn geometry(&self) -> ProjectorGeometry {
         ProjectorGeometry {
             width: self.width,
@@ -177,24 +203,9 @@ impl Rig {
             .iter()
             .enumerate()
             .map(|(k, g)| {
-                let residuals: Vec<f64> = captures
-                    .iter()
-                    .flat_map(|c| epipolar_residuals(first.camera, g, &c.decodes[k].pairs()))
-                    .collect();
                 let mut conditioning = cal.conditioning[k].clone();
                 conditioning.translation_std *= scale;
-                RigProjector {
-                    width: g.width,
-                    height: g.height,
-                    f: g.f,
-                    cx: g.cx,
-                    cy: g.cy,
-                    rotation: g.rotation_rows(),
-                    translation: [g.translation.x, g.translation.y, g.translation.z],
-                    conditioning,
-                    rms_px: cal.per_projector_rms_px[k],
-                    epipolar_median_px: median(residuals),
-                }
+                RigProjector::new(first.camera, g, captures, k, conditioning, cal.per_projector_rms_px[k])
             })
             .collect();
         Ok(Self {
@@ -222,22 +233,14 @@ impl Rig {
             .iter()
             .enumerate()
             .map(|(k, g)| {
-                let residuals: Vec<f64> = captures
-                    .iter()
-                    .flat_map(|c| epipolar_residuals(&cal.camera, g, &c.decodes[k].pairs()))
-                    .collect();
-                RigProjector {
-                    width: g.width,
-                    height: g.height,
-                    f: g.f,
-                    cx: g.cx,
-                    cy: g.cy,
-                    rotation: g.rotation_rows(),
-                    translation: [g.translation.x, g.translation.y, g.translation.z],
-                    conditioning: cal.conditioning[k].clone(),
-                    rms_px: cal.projector_rms_px[k],
-                    epipolar_median_px: median(residuals),
-                }
+                RigProjector::new(
+                    &cal.camera,
+                    g,
+                    captures,
+                    k,
+                    cal.conditioning[k].clone(),
+                    cal.projector_rms_px[k],
+                )
             })
             .collect();
         let n: usize = cal.projector_corners.iter().sum();
