@@ -52,8 +52,9 @@ pub struct RigArgs {
     #[arg(long, value_parser = parse_distortion)]
     pub camera_distortion: Option<[f64; 5]>,
     /// Calibrate from a printed chessboard in every capture (two or more poses): its inner
-    /// corners across and down, COLSxROWS (a board of 10x8 squares has 9x7).
-    #[arg(long, value_parser = super::decode::parse_size, requires = "square_mm")]
+    /// corners across and down, COLSxROWS (a board of 10x8 squares has 9x7). Its squares give
+    /// the scale, so it takes no --known-distance-mm.
+    #[arg(long, value_parser = super::decode::parse_size, requires = "square_mm", conflicts_with = "known_distance_mm")]
     pub chessboard: Option<(u32, u32)>,
     /// Side of one chessboard square, millimetres (measure the print).
     #[arg(long, requires = "chessboard")]
@@ -135,6 +136,22 @@ fn decode_one(args: &RigArgs, dir: &Path, params: &DecodeParams) -> Result<Decod
     Ok(Decoded { name, camera: Some(manifest.camera), size: (w, h), projectors, decodes, white })
 }
 
+/// The decoded captures as the rig solvers take them, with the camera `camera` when given (a
+/// board calibration's), else each capture's own.
+fn rig_captures<'a>(decoded: &'a [Decoded], camera: Option<&'a CameraIntrinsics>) -> Vec<RigCapture<'a>> {
+    decoded
+        .iter()
+        .map(|d| RigCapture {
+            name: d.name.clone(),
+            camera: camera
+                .or(d.camera.as_ref())
+                .expect("decode_one requires a camera unless a board gives one"),
+            projectors: d.projectors.clone(),
+            decodes: &d.decodes,
+        })
+        .collect()
+}
+
 /// The full-white image, when a chessboard is to be found in it.
 fn white_image(args: &RigArgs, images: &CaptureImages) -> Result<Option<Vec<f32>>> {
     if args.chessboard.is_none() {
@@ -149,7 +166,7 @@ fn white_image(args: &RigArgs, images: &CaptureImages) -> Result<Option<Vec<f32>
 
 /// The rig from the chessboard in every capture (Moreno & Taubin): corners in the white image,
 /// carried into each projector, then Zhang and one adjustment.
-fn board_rig(args: &RigArgs, decoded: &[Decoded], captures: &[RigCapture]) -> Result<Rig> {
+fn board_rig(args: &RigArgs, decoded: &[Decoded]) -> Result<Rig> {
     let ((cols, rows), square_mm) = (args.chessboard.expect("caller"), args.square_mm.expect("clap"));
     let board = Board { cols, rows, square_mm };
     let first = &decoded[0];
@@ -201,7 +218,8 @@ fn board_rig(args: &RigArgs, decoded: &[Decoded], captures: &[RigCapture]) -> Re
         cal.camera_rms_px,
         cal.projector_rms_px.iter().map(|r| format!("{r:.3}")).collect::<Vec<_>>()
     );
-    let rig = Rig::from_board(captures, &board, cal.clone());
+    let captures = rig_captures(decoded, Some(&cal.camera));
+    let rig = Rig::from_board(&captures, &board, cal.clone());
     board_check(&rig, decoded, &poses, &cal);
     Ok(rig)
 }
@@ -264,24 +282,10 @@ pub fn run(args: &RigArgs, progress: &dyn Progress) -> Result<Rig> {
         decoded.push(decode_one(args, dir, &params).with_context(|| format!("decoding {}", dir.display()))?);
     }
     progress.stage("solving the rig");
-    // A board calibration without given intrinsics solves the camera: this one only names the
-    // captures until then.
-    let nominal = CameraIntrinsics::pinhole(1, 1, 1.0, 1.0, 0.0, 0.0);
-    let captures: Vec<RigCapture> = decoded
-        .iter()
-        .map(|d| RigCapture {
-            name: d.name.clone(),
-            camera: d.camera.as_ref().unwrap_or(&nominal),
-            projectors: d.projectors.clone(),
-            decodes: &d.decodes,
-        })
-        .collect();
     let rig = if args.chessboard.is_some() {
-        if args.known_distance_mm.is_some() {
-            bail!("--known-distance-mm and --chessboard: the board's squares give the scale; drop one");
-        }
-        board_rig(args, &decoded, &captures)?
+        board_rig(args, &decoded)?
     } else {
+        let captures = rig_captures(&decoded, None);
         let known =
             args.known_distance_mm.map(|mm| KnownLength::Baseline { projector: args.known_projector, mm });
         Rig::calibrate(&captures, &SelfCalParams::default(), params.min_contrast, known.as_ref())
