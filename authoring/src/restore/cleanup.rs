@@ -79,28 +79,84 @@ pub fn fill_holes(work: &mut [u8], w: u32, h: u32, mask: &[bool], background: u8
 /// a dot go first, which joins the dot's fragments into one patch, instead of the fragments
 /// being merged into the background one by one. Returns how many components were merged.
 pub fn remove_specks(work: &mut [u8], w: u32, h: u32, mask: &[bool], min_area: usize) -> usize {
-    let mut removed = 0;
-    let mut count = [0usize; 256];
-    for size in 1..min_area {
-        let mut merged_now = 0;
-        for_components(work, w as usize, h as usize, mask, |work, _, pixels, around| {
-            if pixels.len() > size {
-                return;
+    let (w, h) = (w as usize, h as usize);
+    // Merging only grows the class a speck joins, so a component of `min_area` pixels or
+    // more stays at least that large: one labelling finds the pixels that can ever be part
+    // of a speck, and each pass of the sieve floods from those alone, in scan order, as a
+    // scan of the whole image would reach them (a pass over every pixel flooded the whole
+    // background seven times over).
+    let mut small = vec![false; w * h];
+    for_components(work, w, h, mask, |_, _, pixels, _| {
+        if pixels.len() < min_area {
+            for &p in pixels {
+                small[p] = true;
             }
+        }
+    });
+    let candidates: Vec<usize> = (0..w * h).filter(|&i| small[i]).collect();
+    // Per pass: `done` marks pixels of components flooded whole, `big` those of a flood cut
+    // short because its component is larger than the pass's size.
+    let mut mark = vec![0u32; w * h];
+    let (mut stack, mut pixels) = (Vec::new(), Vec::new());
+    let mut count = [0usize; 256];
+    let mut removed = 0;
+    for size in 1..min_area {
+        let (done, big) = (2 * size as u32 - 1, 2 * size as u32);
+        for &start in &candidates {
+            if mark[start] == done || mark[start] == big {
+                continue;
+            }
+            let l = work[start];
+            pixels.clear();
+            stack.clear();
             count.fill(0);
-            for a in around.iter().flatten() {
-                count[*a as usize] += 1;
+            mark[start] = done;
+            stack.push(start);
+            let mut too_big = false;
+            'flood: while let Some(i) = stack.pop() {
+                pixels.push(i);
+                if pixels.len() > size {
+                    too_big = true;
+                    break;
+                }
+                let (x, y) = (i % w, i / w);
+                let nbrs = [
+                    (x > 0).then(|| i - 1),
+                    (x + 1 < w).then(|| i + 1),
+                    (y > 0).then(|| i - w),
+                    (y + 1 < h).then(|| i + w),
+                ];
+                for j in nbrs.into_iter().flatten() {
+                    if !mask[j] || work[j] == MASKED {
+                        continue;
+                    }
+                    if work[j] != l {
+                        count[work[j] as usize] += 1;
+                    } else if !small[j] || mark[j] == big {
+                        // Joined to a component known to be large: stop early.
+                        too_big = true;
+                        break 'flood;
+                    } else if mark[j] != done {
+                        mark[j] = done;
+                        stack.push(j);
+                    }
+                }
+            }
+            if too_big {
+                for &p in pixels.iter().chain(&stack) {
+                    mark[p] = big;
+                }
+                continue;
             }
             let best = (0..255).max_by_key(|&k| (count[k], std::cmp::Reverse(k))).unwrap_or(0);
             if count[best] == 0 {
-                return;
+                continue;
             }
-            for &p in pixels {
+            for &p in &pixels {
                 work[p] = best as u8;
             }
-            merged_now += 1;
-        });
-        removed += merged_now;
+            removed += 1;
+        }
     }
     removed
 }
@@ -284,6 +340,68 @@ pub(crate) fn clamp_brightening(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// The sieve as first written: every pass floods every component of the region.
+    fn remove_specks_by_full_scans(work: &mut [u8], w: u32, h: u32, mask: &[bool], min_area: usize) -> usize {
+        let mut removed = 0;
+        let mut count = [0usize; 256];
+        for size in 1..min_area {
+            for_components(work, w as usize, h as usize, mask, |work, _, pixels, around| {
+                if pixels.len() > size {
+                    return;
+                }
+                count.fill(0);
+                for a in around.iter().flatten() {
+                    count[*a as usize] += 1;
+                }
+                let best = (0..255).max_by_key(|&k| (count[k], std::cmp::Reverse(k))).unwrap_or(0);
+                if count[best] == 0 {
+                    return;
+                }
+                for &p in pixels {
+                    work[p] = best as u8;
+                }
+                removed += 1;
+            });
+        }
+        removed
+    }
+
+    proptest! {
+        /// Flooding only from the pixels of components that start small gives exactly what
+        /// flooding the whole region at every pass gives (speckled labels, a partial mask,
+        /// masked pixels).
+        #[test]
+        fn the_sieve_matches_full_scans(
+            w in 1u32..24,
+            h in 1u32..24,
+            seed in any::<u64>(),
+            classes in 2u8..5,
+            min_area in 1usize..9,
+        ) {
+            let n = (w * h) as usize;
+            let mut state = seed | 1;
+            let mut next = move || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                state
+            };
+            let labels: Vec<u8> = (0..n)
+                .map(|_| match next() % 16 {
+                    0 => MASKED,
+                    r => (r % classes as u64) as u8,
+                })
+                .collect();
+            let mask: Vec<bool> = (0..n).map(|_| next() % 8 != 0).collect();
+            let (mut fast, mut slow) = (labels.clone(), labels);
+            let a = remove_specks(&mut fast, w, h, &mask, min_area);
+            let b = remove_specks_by_full_scans(&mut slow, w, h, &mask, min_area);
+            prop_assert_eq!(fast, slow);
+            prop_assert_eq!(a, b);
+        }
+    }
 
     #[test]
     fn enclosed_hole_filled_open_bay_kept() {
