@@ -389,10 +389,11 @@ mod tests {
             let (ours, mode) = (get(scene, "ours: wrong pixels"), get(scene, "mode filter: wrong pixels"));
             assert!(fixed >= 0.5 && mean < 1.0, "{scene}: fixed {fixed:.3}, contour distance {mean:.3} px");
             assert!(ours < mode, "{scene}: ours {ours:.3} % wrong vs mode filter {mode:.3} %");
-            // Chips take the colour around them, not that of their misread rims (measured
-            // 78.8-90.0 %; a thin line crossing a chip is cut by the fill).
+            // Chips take the colour around them, not that of their misread rims, and lines
+            // that cross them are bridged (measured 81.9-92.0 %; 78.8 % on the jar without
+            // the bridges).
             let chips = get(scene, "ours: chip pixels in their pristine colour");
-            assert!(chips > 75.0, "{scene}: {chips:.1} % of chip pixels in their pristine colour");
+            assert!(chips > 80.0, "{scene}: {chips:.1} % of chip pixels in their pristine colour");
         }
     }
 

@@ -181,12 +181,17 @@ pub fn fill_losses(work: &mut [u8], w: u32, h: u32, mask: &[bool], loss: &[u8], 
         return 0;
     }
     let suspect = suspect_rims(work, w, h, mask, &is_loss);
-    let fill = |i: usize| mask[i] && (is_loss(work[i]) || suspect[i]);
+    let hole: Vec<bool> = (0..w * h).map(|i| mask[i] && (is_loss(work[i]) || suspect[i])).collect();
+    let targets: Vec<usize> = (0..w * h).filter(|&i| hole[i]).collect();
+    // Bridges are painted after the nearest-class fill below and are not its sources: a
+    // bridge as a source would widen its line across the whole hole.
+    let mut bridged = hole.clone();
+    bridge_lines(work, w, h, mask, &mut bridged);
     const NONE: (i32, i32) = (i32::MIN, i32::MIN);
     let mut src: Vec<(i32, i32)> = (0..w * h)
         .map(|i| {
             let l = work[i];
-            if mask[i] && l != MASKED && !fill(i) { ((i % w) as i32, (i / w) as i32) } else { NONE }
+            if mask[i] && l != MASKED && !hole[i] { ((i % w) as i32, (i / w) as i32) } else { NONE }
         })
         .collect();
     let d2 = |s: (i32, i32), x: i32, y: i32| {
@@ -223,13 +228,194 @@ pub fn fill_losses(work: &mut [u8], w: u32, h: u32, mask: &[bool], loss: &[u8], 
             relax(&mut src, x, y, -1, 0);
         }
     }
-    let targets: Vec<usize> = (0..w * h).filter(|&i| fill(i)).collect();
-    for &i in &targets {
+    for &i in targets.iter().filter(|&&i| bridged[i]) {
         let s = src[i];
         // Sources are never filled, so reading them after earlier fills is still right.
         work[i] = if s == NONE { background } else { work[s.1 as usize * w + s.0 as usize] };
     }
     targets.len()
+}
+
+/// Where a short arc of one class meets a hole: its centroid and the direction (unit) from
+/// the class's pixels outside the hole towards it.
+struct ArcEnd<'a> {
+    class: u8,
+    at: [f64; 2],
+    inward: [f64; 2],
+    pixels: &'a [usize],
+}
+
+/// The 8 neighbours of pixel `i` inside a `w` x `h` image.
+fn neighbours8(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = ((i % w) as i64, (i / w) as i64);
+    (-1i64..=1)
+        .flat_map(move |dy| (-1i64..=1).map(move |dx| (x + dx, y + dy)))
+        .filter(move |&(nx, ny)| nx >= 0 && ny >= 0 && nx < w as i64 && ny < h as i64 && (nx, ny) != (x, y))
+        .map(move |(nx, ny)| ny as usize * w + nx as usize)
+}
+
+/// Thin lines across a hole: where a class enters a hole in two short arcs of its rim that
+/// face each other along the direction the class runs outside it (a line or a spiral arm
+/// crossing a chip), the hole pixels within the arcs' half-width of the segment joining them
+/// take that class and stop being hole. A nearest-class fill alone cuts such a line: inside a
+/// round chip the line's share of nearest pixels narrows to nothing at the centre, and the
+/// contour minimisation then trims the tips. A class that enters in one arc (a line ending at
+/// the chip, a band edge) or in long arcs (the surrounding colour) is left to that fill.
+fn bridge_lines(work: &mut [u8], w: usize, h: usize, mask: &[bool], hole: &mut [bool]) {
+    /// How far (px) beyond an arc the class's own pixels give its direction.
+    const REACH: i64 = 6;
+    /// The smallest cosine between the joining segment and each arc's inward direction.
+    const FACING: f64 = 0.8;
+    // Bridging only paints hole pixels, so which pixels are usable does not change.
+    let usable: Vec<bool> = (0..w * h).map(|i| mask[i] && work[i] != MASKED).collect();
+    let usable = |i: usize| usable[i];
+    let around = |i: usize| neighbours8(i, w, h);
+    let at = |i: usize| [(i % w) as f64, (i / w) as f64];
+    let mut seen = vec![false; w * h];
+    let mut ring_seen = vec![u32::MAX; w * h];
+    let mut chips = 0u32;
+    for start in 0..w * h {
+        if !hole[start] || seen[start] {
+            continue;
+        }
+        // The hole (8-connected) and the usable pixels around it.
+        let mut chip = vec![start];
+        seen[start] = true;
+        let mut k = 0;
+        let mut ring = Vec::new();
+        while k < chip.len() {
+            let i = chip[k];
+            k += 1;
+            for j in around(i) {
+                if hole[j] {
+                    if !seen[j] {
+                        seen[j] = true;
+                        chip.push(j);
+                    }
+                } else if usable(j) && ring_seen[j] != chips {
+                    ring_seen[j] = chips;
+                    ring.push(j);
+                }
+            }
+        }
+        chips += 1;
+        // Arcs: runs of one class along the ring (8-connected among ring pixels).
+        let on_ring: std::collections::HashSet<usize> = ring.iter().copied().collect();
+        let mut arc_of = std::collections::HashMap::new();
+        let mut arcs: Vec<(u8, Vec<usize>)> = Vec::new();
+        for &r in &ring {
+            if arc_of.contains_key(&r) {
+                continue;
+            }
+            let (l, id) = (work[r], arcs.len());
+            let mut members = vec![r];
+            arc_of.insert(r, id);
+            let mut m = 0;
+            while m < members.len() {
+                let i = members[m];
+                m += 1;
+                for j in around(i) {
+                    if on_ring.contains(&j) && work[j] == l && !arc_of.contains_key(&j) {
+                        arc_of.insert(j, id);
+                        members.push(j);
+                    }
+                }
+            }
+            arcs.push((l, members));
+        }
+        // Short arcs with the direction their class comes from.
+        let centroid = |px: &[usize]| {
+            let mut c = [0.0; 2];
+            for &i in px {
+                let p = at(i);
+                c[0] += p[0];
+                c[1] += p[1];
+            }
+            [c[0] / px.len() as f64, c[1] / px.len() as f64]
+        };
+        let mut ends: Vec<ArcEnd> = Vec::new();
+        for (l, members) in &arcs {
+            if members.len() * 4 > ring.len() {
+                continue;
+            }
+            let a = centroid(members);
+            let (ax, ay) = (a[0].round() as i64, a[1].round() as i64);
+            let mut outside = Vec::new();
+            for y in (ay - REACH).max(0)..=(ay + REACH).min(h as i64 - 1) {
+                for x in (ax - REACH).max(0)..=(ax + REACH).min(w as i64 - 1) {
+                    let j = y as usize * w + x as usize;
+                    if usable(j) && !hole[j] && work[j] == *l {
+                        outside.push(j);
+                    }
+                }
+            }
+            let o = centroid(&outside);
+            let inward = [a[0] - o[0], a[1] - o[1]];
+            let len = inward[0].hypot(inward[1]);
+            if len >= 0.5 {
+                ends.push(ArcEnd {
+                    class: *l,
+                    at: a,
+                    inward: [inward[0] / len, inward[1] / len],
+                    pixels: members,
+                });
+            }
+        }
+        // Pair arcs of one class that face each other, best aligned first.
+        let mut pairs = Vec::new();
+        for (p, e) in ends.iter().enumerate() {
+            for (q, f) in ends.iter().enumerate().skip(p + 1) {
+                if e.class != f.class {
+                    continue;
+                }
+                let ab = [f.at[0] - e.at[0], f.at[1] - e.at[1]];
+                let len = ab[0].hypot(ab[1]);
+                if len < 1.0 {
+                    continue;
+                }
+                let u = [ab[0] / len, ab[1] / len];
+                let facing =
+                    (u[0] * e.inward[0] + u[1] * e.inward[1]).min(-(u[0] * f.inward[0] + u[1] * f.inward[1]));
+                if facing > FACING {
+                    pairs.push((facing, p, q));
+                }
+            }
+        }
+        pairs.sort_by(|a, b| b.0.total_cmp(&a.0).then((a.1, a.2).cmp(&(b.1, b.2))));
+        let mut used = vec![false; ends.len()];
+        for (_, p, q) in pairs {
+            if used[p] || used[q] {
+                continue;
+            }
+            used[p] = true;
+            used[q] = true;
+            let (l, a, b) = (ends[p].class, ends[p].at, ends[q].at);
+            let ab = [b[0] - a[0], b[1] - a[1]];
+            let len2 = ab[0] * ab[0] + ab[1] * ab[1];
+            let normal = [-ab[1] / len2.sqrt(), ab[0] / len2.sqrt()];
+            // Half the line's width: the arcs' spread across the joining segment.
+            let half = [ends[p].pixels, ends[q].pixels]
+                .iter()
+                .map(|px| {
+                    let across = px.iter().map(|&i| {
+                        let v = at(i);
+                        (v[0] - a[0]) * normal[0] + (v[1] - a[1]) * normal[1]
+                    });
+                    let (lo, hi) = across.fold((f64::MAX, f64::MIN), |(lo, hi), t| (lo.min(t), hi.max(t)));
+                    (hi - lo) * 0.5 + 0.5
+                })
+                .fold(0.0, f64::max);
+            for &i in &chip {
+                let v = at(i);
+                let t = (((v[0] - a[0]) * ab[0] + (v[1] - a[1]) * ab[1]) / len2).clamp(0.0, 1.0);
+                let off = [v[0] - a[0] - t * ab[0], v[1] - a[1] - t * ab[1]];
+                if hole[i] && off[0].hypot(off[1]) <= half {
+                    work[i] = l;
+                    hole[i] = false;
+                }
+            }
+        }
+    }
 }
 
 /// How far out from a chip (pixels, Chebyshev) its rim may be untrustworthy: camera pixels
@@ -251,15 +437,7 @@ fn suspect_rims(work: &[u8], w: usize, h: usize, mask: &[bool], is_loss: &dyn Fn
     let mut dist = vec![u32::MAX; n];
     let mut queue = std::collections::VecDeque::new();
     let mut count = 0u32;
-    let neighbours = |i: usize| {
-        let (x, y) = ((i % w) as i64, (i / w) as i64);
-        (-1i64..=1)
-            .flat_map(move |dy| (-1i64..=1).map(move |dx| (x + dx, y + dy)))
-            .filter(move |&(nx, ny)| {
-                nx >= 0 && ny >= 0 && nx < w as i64 && ny < h as i64 && (nx, ny) != (x, y)
-            })
-            .map(move |(nx, ny)| ny as usize * w + nx as usize)
-    };
+    let neighbours = |i: usize| neighbours8(i, w, h);
     for start in 0..n {
         if comp[start] != u32::MAX || !usable(start) || !is_loss(work[start]) {
             continue;
@@ -460,6 +638,56 @@ mod tests {
             assert_eq!(l[y * w + 6], 1);
         }
         assert!(!l.contains(&3), "the rim's class is gone");
+    }
+
+    /// A 40x40 field of class 0 with a chip (loss 9) of radius 8 at (20, 20), crossed by a
+    /// line of class 1 drawn by `on_line`; returns the labels after the loss fill.
+    fn chip_across(on_line: impl Fn(f64, f64) -> bool) -> Vec<u8> {
+        let (w, h) = (40usize, 40usize);
+        let mut l: Vec<u8> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f64, (i / w) as f64);
+                if (x - 20.0).hypot(y - 20.0) <= 8.0 {
+                    9
+                } else if on_line(x, y) {
+                    1
+                } else {
+                    0
+                }
+            })
+            .collect();
+        let mask = vec![true; w * h];
+        fill_losses(&mut l, w as u32, h as u32, &mask, &[9], 0);
+        assert!(!l.contains(&9));
+        l
+    }
+
+    #[test]
+    fn a_line_across_a_chip_stays_whole() {
+        // Horizontal, 3 px wide: every column through the chip keeps the line's three rows.
+        let l = chip_across(|_, y| (19.0..=21.0).contains(&y));
+        for x in 10..31 {
+            for y in 19..=21 {
+                assert_eq!(l[y * 40 + x], 1, "({x}, {y})");
+            }
+            assert_eq!(l[16 * 40 + x], 0, "({x}, 16) above the line");
+            assert_eq!(l[24 * 40 + x], 0, "({x}, 24) below the line");
+        }
+        // Diagonal, about 3 px wide: the line runs unbroken along the diagonal.
+        let l = chip_across(|x, y| (x - y).abs() <= 1.5);
+        for t in 8..33 {
+            assert_eq!(l[t * 40 + t], 1, "({t}, {t}) on the diagonal");
+        }
+        assert_eq!(l[14 * 40 + 26], 0, "off the diagonal inside the chip");
+    }
+
+    #[test]
+    fn a_line_that_ends_at_a_chip_is_not_extended() {
+        let l = chip_across(|x, y| x < 20.0 && (19.0..=21.0).contains(&y));
+        // The nearest-class fill carries the line a little way in; it does not cross.
+        for x in 24..29 {
+            assert_eq!(l[20 * 40 + x], 0, "({x}, 20)");
+        }
     }
 
     #[test]
