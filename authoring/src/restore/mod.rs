@@ -2,7 +2,8 @@
 //! patches of one colour inside a region are outlined, their contours smoothed under the
 //! energy `e = kappa * R * B`, and rasterised back over the region's background colour.
 //!
-//! Per region, in this order: loss classes (bare clay) filled from the nearest other class;
+//! Per region, in this order: loss classes (bare clay) filled from the nearest other class,
+//! after thin lines across them are bridged;
 //! specks removed (smallest first) and small holes filled; the contours minimised and
 //! rasterised back over the background; specks and holes once more; the gamma guarantee.
 //!
