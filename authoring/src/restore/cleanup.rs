@@ -29,14 +29,7 @@ fn for_components(
         stack.push(start);
         while let Some(i) = stack.pop() {
             pixels.push(i);
-            let (x, y) = (i % w, i / w);
-            let nbrs = [
-                (x > 0).then(|| i - 1),
-                (x + 1 < w).then(|| i + 1),
-                (y > 0).then(|| i - w),
-                (y + 1 < h).then(|| i + w),
-            ];
-            for j in nbrs {
+            for j in neighbours4(i, w, h) {
                 match j {
                     Some(j) if mask[j] && work[j] == l => {
                         if !seen[j] {
@@ -119,14 +112,7 @@ pub fn remove_specks(work: &mut [u8], w: u32, h: u32, mask: &[bool], min_area: u
                     too_big = true;
                     break;
                 }
-                let (x, y) = (i % w, i / w);
-                let nbrs = [
-                    (x > 0).then(|| i - 1),
-                    (x + 1 < w).then(|| i + 1),
-                    (y > 0).then(|| i - w),
-                    (y + 1 < h).then(|| i + w),
-                ];
-                for j in nbrs.into_iter().flatten() {
+                for j in neighbours4(i, w, h).into_iter().flatten() {
                     if !mask[j] || work[j] == MASKED {
                         continue;
                     }
@@ -243,6 +229,12 @@ struct ArcEnd<'a> {
     at: [f64; 2],
     inward: [f64; 2],
     pixels: &'a [usize],
+}
+
+/// The 4 neighbours of pixel `i` (left, right, up, down), `None` outside a `w` x `h` image.
+fn neighbours4(i: usize, w: usize, h: usize) -> [Option<usize>; 4] {
+    let (x, y) = (i % w, i / w);
+    [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)]
 }
 
 /// The 8 neighbours of pixel `i` inside a `w` x `h` image.
