@@ -72,7 +72,13 @@ pub fn bowl_inputs(
 ) -> (restage_authoring::classify::LabelMap, restage_authoring::classify::Picks) {
     use restage_authoring::classify::{LabelMap, MASKED, picks_from_labels};
     use restage_authoring::eval::classify::{PICKS_PER_CLASS, scene_case};
-    let case = scene_case(restage_authoring::stage_sim::SceneName::Bowl, [240, 180], 2).expect("the bowl");
+    let case = scene_case(
+        restage_authoring::stage_sim::SceneName::Bowl,
+        [240, 180],
+        2,
+        restage_authoring::stage_sim::RigVariation::Seeded,
+    )
+    .expect("the bowl");
     let present: Vec<usize> =
         (0..case.names.len()).filter(|&c| case.truth.data.contains(&(c as u8))).collect();
     let dense = LabelMap::from_vec(

@@ -7,6 +7,7 @@ use anyhow::{Context, Result};
 use clap::{Args, Subcommand};
 use restage_authoring::eval::{self, Metric};
 use restage_authoring::stage_model::StageModel;
+use restage_authoring::stage_sim::RigVariation;
 
 #[derive(Args)]
 pub struct EvalArgs {
@@ -43,6 +44,10 @@ pub enum EvalStep {
         /// Write each case's photo, truth, preview and accuracies into OUT/<case>/.
         #[arg(long)]
         out: Option<PathBuf>,
+        /// `seeded`: the projectors' placement and lenses, the camera's focal length and the
+        /// objects' form vary with the seed; `nominal`: the demo's rig at every seed.
+        #[arg(long, value_enum, default_value = "seeded")]
+        rig: RigVariation,
     },
     /// Contour restoration on every built-in scene against the pristine labels: ours and a
     /// mode filter (`eval-restore` adds the Telea peer and writes pictures).
@@ -52,6 +57,10 @@ pub enum EvalStep {
         camera: String,
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// `seeded`: the projectors' placement and lenses, the camera's focal length and the
+        /// objects' form vary with the seed; `nominal`: the demo's rig at every seed.
+        #[arg(long, value_enum, default_value = "seeded")]
+        rig: RigVariation,
     },
     /// Light transport, responses, vignetting, black levels, lux and gain (paper §5.2) against
     /// the capture's ground-truth stage model.
@@ -76,6 +85,17 @@ pub enum EvalStep {
         m: restage_authoring::compensate::Exponent,
         #[arg(long, default_value_t = 0.05)]
         margin: f64,
+        /// Instead of the built-in scenes: a simulated capture, compensated with its true
+        /// model and with `--stage` (what `calibrate` made of it), side by side.
+        #[arg(long, requires = "stage")]
+        capture: Option<PathBuf>,
+        /// The stage `calibrate` wrote for `--capture`.
+        #[arg(long, requires = "capture")]
+        stage: Option<PathBuf>,
+        /// `seeded`: the projectors' placement and lenses, the camera's focal length and the
+        /// objects' form vary with the seed; `nominal`: the demo's rig at every seed.
+        #[arg(long, value_enum, default_value = "seeded")]
+        rig: RigVariation,
     },
 }
 
@@ -95,10 +115,10 @@ pub fn run(args: EvalArgs) -> Result<()> {
             }
             m
         }
-        EvalStep::Classify { capture, camera, seed, out } => {
-            eval_classify(capture, camera, *seed, out.as_deref())?
+        EvalStep::Classify { capture, camera, seed, out, rig } => {
+            eval_classify(capture, camera, *seed, *rig, out.as_deref())?
         }
-        EvalStep::Restore { camera, seed } => {
+        EvalStep::Restore { camera, seed, rig } => {
             let (w, h) = camera
                 .split_once('x')
                 .and_then(|(w, h)| Some((w.parse::<u32>().ok()?, h.parse::<u32>().ok()?)))
@@ -106,6 +126,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             eval::restore::evaluate_builtin(
                 [w, h],
                 *seed,
+                *rig,
                 &restage_authoring::restore::RestoreParams::default(),
             )?
         }
@@ -116,9 +137,17 @@ pub fn run(args: EvalArgs) -> Result<()> {
             let est = StageModel::load(stage)?;
             eval::transport::evaluate(&est, &truth)
         }
-        EvalStep::Compensate { seed, ebound_lux, m, margin } => {
+        EvalStep::Compensate { seed, ebound_lux, m, margin, rig, capture, stage } => {
             let params = restage_authoring::compensate::Params::new(*ebound_lux, *m, *margin)?;
-            eval::compensate::evaluate_builtin(*seed, &params)?
+            match (capture, stage) {
+                (Some(capture), Some(stage)) => {
+                    let model = StageModel::load(stage)?;
+                    eval::compensate::evaluate_capture(capture, &model, &params).with_context(|| {
+                        format!("evaluating {} against {}", stage.display(), capture.display())
+                    })?
+                }
+                _ => eval::compensate::evaluate_builtin(*seed, *rig, &params)?,
+            }
         }
     };
     print!("{}", eval::table(&metrics));
@@ -134,6 +163,7 @@ fn eval_classify(
     captures: &[PathBuf],
     camera: &str,
     seed: u64,
+    rig: RigVariation,
     out: Option<&std::path::Path>,
 ) -> Result<Vec<Metric>> {
     use restage_authoring::eval::classify as ec;
@@ -146,7 +176,7 @@ fn eval_classify(
             .with_context(|| format!("--camera {camera}: expected WIDTHxHEIGHT, e.g. 800x600"))?;
         for scene in SceneName::ALL {
             tracing::info!("simulating the {} photo", scene.name());
-            cases.push(ec::scene_case(scene, [w, h], seed)?);
+            cases.push(ec::scene_case(scene, [w, h], seed, rig)?);
         }
     } else {
         for c in captures {

@@ -24,6 +24,10 @@ pub struct EvalRestoreArgs {
     pub camera: String,
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// `seeded`: the projectors' placement and lenses, the camera's focal length and the
+    /// objects' form vary with the seed; `nominal`: the demo's rig at every seed.
+    #[arg(long, value_enum, default_value = "seeded")]
+    pub rig: restage_authoring::stage_sim::RigVariation,
     #[arg(long, default_value_t = 2.0)]
     pub alpha: f64,
     #[arg(long, default_value_t = 3.0)]
@@ -41,7 +45,7 @@ pub fn run(args: &EvalRestoreArgs) -> Result<()> {
     };
     let mut all: Vec<Metric> = Vec::new();
     for name in SceneName::ALL {
-        let scene = prepare_scene(name, camera, args.seed)?;
+        let scene = prepare_scene(name, camera, args.seed, args.rig)?;
         let dir = args.out.join(scene.name.as_str());
         write_peer_inputs(&scene, &dir.join("peer"))?;
         let telea_path = dir.join("peer").join("telea.png");

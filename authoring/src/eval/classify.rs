@@ -13,7 +13,7 @@ use crate::classify::baseline::{BaselineSpace, kmeans_baseline};
 use crate::classify::{ClassifyError, ClassifyOptions, LabelMap, MASKED, classify, picks_from_labels};
 use crate::eval::Metric;
 use crate::imgio::LinearImage;
-use crate::stage_sim::{GROUND_TRUTH_DIR, SceneConfig, SceneName, StageSimError, VirtualStage};
+use crate::stage_sim::{GROUND_TRUTH_DIR, RigVariation, SceneConfig, SceneName, StageSimError, VirtualStage};
 
 /// Picks per colour the simulated conservator clicks. Which pixels are clicked matters (see
 /// [`PICK_SEEDS`]); with 6 per colour the picks often miss how a paint varies (fading) and
@@ -342,7 +342,12 @@ pub struct EvalCase {
 
 /// Renders a built-in scene's diffusely lit photo in memory (as the capture's `photo.png`:
 /// all projectors black, room light on, camera noise) with its deteriorated labels.
-pub fn scene_case(scene: SceneName, camera: [u32; 2], seed: u64) -> Result<EvalCase, StageSimError> {
+pub fn scene_case(
+    scene: SceneName,
+    camera: [u32; 2],
+    seed: u64,
+    rig: RigVariation,
+) -> Result<EvalCase, StageSimError> {
     let cfg = SceneConfig {
         scene,
         seed,
@@ -351,6 +356,7 @@ pub fn scene_case(scene: SceneName, camera: [u32; 2], seed: u64) -> Result<EvalC
         projectors: 3,
         deteriorate: true,
         plinth: false,
+        rig,
     };
     let stage = VirtualStage::new(&cfg)?;
     let photo = stage.capture(&stage.black_frames(), true, 0)?;
@@ -441,7 +447,7 @@ mod tests {
 
     #[test]
     fn tiny_virtual_vase_is_classified_well() {
-        let case = scene_case(SceneName::Vase, [160, 120], 1).unwrap();
+        let case = scene_case(SceneName::Vase, [160, 120], 1, RigVariation::Seeded).unwrap();
         let e =
             evaluate_photo(&case.label, &case.photo, &case.truth, &case.names, &case.display, &case.loss, 1)
                 .unwrap();

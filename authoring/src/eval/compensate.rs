@@ -2,6 +2,8 @@
 //! stage's true geometry, responses and blur) against the restored target, the true peak
 //! irradiance against E_bound, and the brightness/smoothness trade-off over m (paper Fig. 8).
 
+use std::path::Path;
+
 use image::RgbImage;
 
 use super::Metric;
@@ -10,7 +12,7 @@ use crate::compensate::synthetic::SyntheticStage;
 use crate::compensate::{self, CompensateError, Compensation, Exponent, Params, Prepared};
 use crate::imgio::LinearImage;
 use crate::stage_model::StageModel;
-use crate::stage_sim::{SceneConfig, SceneName, VirtualStage};
+use crate::stage_sim::{RigVariation, SceneConfig, SceneName, VirtualStage};
 
 const STEP: &str = "compensate";
 
@@ -60,7 +62,11 @@ pub fn pristine_target(stage: &VirtualStage) -> LinearImage {
 /// vase again standing on the grey plinth: the object's pristine paint as the target (0 on
 /// the plinth, which is not to be lit), compensated with the TRUE stage model (geometry,
 /// responses; it knows nothing of interreflection), judged with the true physics.
-pub fn evaluate_builtin(seed: u64, params: &Params) -> Result<Vec<Metric>, CompensateError> {
+pub fn evaluate_builtin(
+    seed: u64,
+    rig: RigVariation,
+    params: &Params,
+) -> Result<Vec<Metric>, CompensateError> {
     let mut rows = Vec::new();
     let cases = SceneName::ALL.into_iter().map(|scene| (scene, false)).chain([(SceneName::Vase, true)]);
     for (scene, plinth) in cases {
@@ -70,6 +76,7 @@ pub fn evaluate_builtin(seed: u64, params: &Params) -> Result<Vec<Metric>, Compe
             camera: [480, 360],
             projector: [560, 420],
             plinth,
+            rig,
             ..SceneConfig::default()
         };
         let stage = VirtualStage::new(&cfg).expect("built-in scene configuration is valid");
@@ -118,6 +125,30 @@ pub fn colour_error(comp: &Compensation, view: &[[f32; 3]], target: &LinearImage
     let mean = de.iter().sum::<f64>() / de.len() as f64;
     let p95 = de[((de.len() as f64 * 0.95) as usize).min(de.len() - 1)];
     (mean, p95, de.len())
+}
+
+/// Over every pixel of the object (where the target is not black), not only those the model
+/// covers: the share the compensation lights (some projector has weight there) and the mean
+/// CIEDE2000 of what the visitor sees, after the global scale. An object pixel the model
+/// leaves unlit shows room light only and counts as the error it is. Returns (lit share, mean
+/// CIEDE2000, object pixels).
+pub fn whole_object(comp: &Compensation, view: &[[f32; 3]], target: &LinearImage) -> (f64, f64, usize) {
+    let s = comp.stats.scale;
+    let kn = comp.frames.len();
+    let object: Vec<usize> = (0..view.len()).filter(|&i| target.data[i].iter().any(|&c| c > 0.0)).collect();
+    if object.is_empty() || s <= 0.0 {
+        return (f64::NAN, f64::NAN, object.len());
+    }
+    let lit = object.iter().filter(|&&i| comp.weights[i * kn..(i + 1) * kn].iter().any(|&w| w > 0.0)).count();
+    let de: f64 = object
+        .iter()
+        .map(|&i| {
+            let v = view[i].map(|c| c as f64 / s);
+            ciede2000(linear_srgb_to_lab(v), linear_srgb_to_lab(target.data[i].map(f64::from)))
+        })
+        .filter(|d| d.is_finite())
+        .sum();
+    (lit as f64 / object.len() as f64, de / object.len() as f64, object.len())
 }
 
 /// Highest true irradiance (lux, max channel, room light included) at the camera's pixels on
@@ -201,14 +232,39 @@ pub fn evaluate(
     params: &Params,
 ) -> Result<Vec<Metric>, CompensateError> {
     let prep = Prepared::new(model, params.reduction)?;
-    let comp = compensate::compensate_prepared(model, &prep, target, params)?;
+    let mut rows = visitor_view(label, truth, model, &prep, target, params)?;
+    rows.extend(tradeoff(label, truth, model, &prep, target, params)?);
+    Ok(rows)
+}
+
+/// What the visitor sees at the user's m: colour error on the pixels the model covers and over
+/// the whole object, how much of the object is lit, the true peaks against E_bound, and the
+/// fractions limited by the bound and by saturation.
+pub fn visitor_view(
+    label: &str,
+    truth: &dyn TruePhysics,
+    model: &StageModel,
+    prep: &Prepared,
+    target: &LinearImage,
+    params: &Params,
+) -> Result<Vec<Metric>, CompensateError> {
+    let comp = compensate::compensate_prepared(model, prep, target, params)?;
     let view = truth.view(&comp.frames);
     let (mean, p95, n) = colour_error(&comp, &view, target);
+    let (lit, whole_mean, object) = whole_object(&comp, &view, target);
     let name = |s: &str| format!("{label}: {s}");
     let mut rows = vec![
         Metric::below(STEP, &name(&format!("CIEDE2000 mean (m = {})", params.m)), mean, "dE00", 3.0),
         Metric::info(STEP, &name("CIEDE2000 p95"), p95, "dE00"),
         Metric::info(STEP, &name("covered pixels"), n as f64, "px"),
+        Metric::info(STEP, &name("object pixels"), object as f64, "px"),
+        Metric::info(STEP, &name("object pixels lit"), 100.0 * lit, "%"),
+        Metric::info(
+            STEP,
+            &name("CIEDE2000 mean over the whole object, unlit pixels included"),
+            whole_mean,
+            "dE00",
+        ),
     ];
     let camera_peak = true_peak(truth, &comp.frames);
     let surface_peak = truth.surface_peak_lux(&comp.frames);
@@ -235,7 +291,41 @@ pub fn evaluate(
         comp.stats.limited_by_saturation as f64 / cov,
         "",
     ));
-    rows.extend(tradeoff(label, truth, model, &prep, target, params)?);
+    Ok(rows)
+}
+
+/// A simulated capture's stage compensated twice for its pristine paint, with its true model
+/// and with `calibrated` (what `calibrate` made of the capture), both judged with the capture's
+/// true physics: the rows of [`visitor_view`], labelled "true model" and "calibrated".
+pub fn evaluate_capture(
+    capture: &Path,
+    calibrated: &StageModel,
+    params: &Params,
+) -> anyhow::Result<Vec<Metric>> {
+    let config = crate::stage_sim::load_config(capture)?;
+    let stage = VirtualStage::new(&config)?;
+    let truth = stage.truth();
+    let (cam, cal) = (&truth.camera, &calibrated.camera);
+    if (cam.width, cam.height) != (cal.width, cal.height)
+        || calibrated.projectors.len() != truth.projectors.len()
+    {
+        anyhow::bail!(
+            "the calibrated model ({}x{} camera, {} projectors) is not of the capture in {} ({}x{}, {})",
+            cal.width,
+            cal.height,
+            calibrated.projectors.len(),
+            capture.display(),
+            cam.width,
+            cam.height,
+            truth.projectors.len()
+        );
+    }
+    let target = pristine_target(&stage);
+    let mut rows = Vec::new();
+    for (label, model) in [("true model", &truth), ("calibrated", calibrated)] {
+        let prep = Prepared::new(model, params.reduction)?;
+        rows.extend(visitor_view(label, &stage, model, &prep, &target, params)?);
+    }
     Ok(rows)
 }
 
@@ -336,6 +426,53 @@ pub fn tradeoff(
 mod tests {
     use super::*;
     use crate::compensate::synthetic::{SyntheticSpec, build};
+
+    /// A calibrated model that lost a patch of its surface leaves that patch unlit: the
+    /// covered-pixel error does not see it, the whole-object rows do.
+    #[test]
+    fn a_hole_in_the_calibrated_model_shows_as_unlit_object() {
+        let cfg = SceneConfig { rig: RigVariation::Seeded, ..SceneConfig::tiny(SceneName::Jar, 4) };
+        let stage = VirtualStage::new(&cfg).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        stage.write_ground_truth(dir.path()).unwrap();
+        let mut holed = stage.truth();
+        let w = holed.camera.width as usize;
+        let object: Vec<usize> =
+            (0..holed.points.len()).filter(|&i| holed.points[i][0].is_finite()).collect();
+        let centre = object[object.len() / 2];
+        let mut punched = 0;
+        for i in object {
+            if (i % w).abs_diff(centre % w) < 12 && (i / w).abs_diff(centre / w) < 12 {
+                holed.points[i] = [f32::NAN; 3];
+                holed.normals[i] = [f32::NAN; 3];
+                punched += 1;
+            }
+        }
+        let params = Params::new(150.0, Exponent::Finite(8.0), 0.05).unwrap();
+        let rows = evaluate_capture(dir.path(), &holed, &params).unwrap();
+        let get = |label: &str, what: &str| {
+            rows.iter()
+                .find(|m| m.name == format!("{label}: {what}"))
+                .unwrap_or_else(|| panic!("{label}: {what}"))
+                .value
+        };
+        let object_px = get("true model", "object pixels");
+        let (lit_true, lit_cal) =
+            (get("true model", "object pixels lit"), get("calibrated", "object pixels lit"));
+        assert!(lit_true > 97.0, "{}", crate::eval::table(&rows));
+        let lost = (lit_true - lit_cal) / 100.0 * object_px;
+        assert!(
+            lost >= 0.9 * punched as f64,
+            "{lost} px unlit for {punched} punched\n{}",
+            crate::eval::table(&rows)
+        );
+        let whole = "CIEDE2000 mean over the whole object, unlit pixels included";
+        assert!(get("calibrated", whole) > get("true model", whole) + 1.0, "{}", crate::eval::table(&rows));
+        // A model of another capture is refused, naming it.
+        let other = VirtualStage::new(&SceneConfig { camera: [200, 150], ..cfg }).unwrap().truth();
+        let err = evaluate_capture(dir.path(), &other, &params).unwrap_err();
+        assert!(format!("{err:#}").contains("not of the capture"), "{err:#}");
+    }
 
     #[test]
     fn synthetic_scene_evaluates_within_targets() {
@@ -441,6 +578,7 @@ mod whole_surface {
             camera: [200, 150],
             projector: [160, 120],
             plinth,
+            rig: RigVariation::Seeded,
             ..SceneConfig::default()
         }
     }

@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use super::Metric;
 use crate::classify::{self, ClassifyOptions, LabelMap, MASKED, picks_from_labels};
 use crate::restore::{self, Region, RestoreParams, Shape, io::class_info};
-use crate::stage_sim::{SceneConfig, SceneName, VirtualStage};
+use crate::stage_sim::{RigVariation, SceneConfig, SceneName, VirtualStage};
 
 const STEP: &str = "restore";
 
@@ -229,8 +229,8 @@ pub struct Scene {
 
 /// Simulates a built-in scene's diffuse photo and classifies it with picks drawn from the
 /// (deteriorated) labels, as a conservator would click them.
-pub fn prepare_scene(scene: SceneName, camera: [u32; 2], seed: u64) -> Result<Scene> {
-    let cfg = SceneConfig { scene, seed, camera, ..SceneConfig::default() };
+pub fn prepare_scene(scene: SceneName, camera: [u32; 2], seed: u64, rig: RigVariation) -> Result<Scene> {
+    let cfg = SceneConfig { scene, seed, camera, rig, ..SceneConfig::default() };
     let stage = VirtualStage::new(&cfg).with_context(|| format!("building scene {}", scene.name()))?;
     let photo = stage.capture(&stage.black_frames(), true, 0)?;
     let (w, h) = (camera[0], camera[1]);
@@ -322,11 +322,16 @@ pub fn evaluate_scene(
 
 /// The table on every built-in scene at `camera` size (ours and the mode filter; the Telea
 /// peer needs files, see `eval-restore`), with the CLI's automatic grid of ~256 px cells.
-pub fn evaluate_builtin(camera: [u32; 2], seed: u64, params: &RestoreParams) -> Result<Vec<Metric>> {
+pub fn evaluate_builtin(
+    camera: [u32; 2],
+    seed: u64,
+    rig: RigVariation,
+    params: &RestoreParams,
+) -> Result<Vec<Metric>> {
     let params = RestoreParams { grid: (camera[0].div_ceil(256), camera[1].div_ceil(256)), ..params.clone() };
     let mut all = Vec::new();
     for name in SceneName::ALL {
-        all.extend(evaluate_scene(&prepare_scene(name, camera, seed)?, &params, &[])?);
+        all.extend(evaluate_scene(&prepare_scene(name, camera, seed, rig)?, &params, &[])?);
     }
     Ok(all)
 }
@@ -379,7 +384,7 @@ mod tests {
         // The figure at the eval's default size: at least half of the
         // classification's wrong pixels fixed, mean contour distance under 1 px, fewer wrong
         // pixels than the mode filter, on every built-in scene with default parameters.
-        let m = evaluate_builtin([800, 600], 1, &RestoreParams::default()).unwrap();
+        let m = evaluate_builtin([800, 600], 1, RigVariation::Seeded, &RestoreParams::default()).unwrap();
         let get = |scene: &str, what: &str| {
             m.iter().find(|x| x.name == format!("{scene} {what}")).map(|x| x.value).unwrap()
         };

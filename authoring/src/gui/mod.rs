@@ -23,7 +23,7 @@ use std::sync::Arc;
 
 use anyhow::{Result, bail};
 use restage_authoring::acquire::AcquireConfig;
-use restage_authoring::stage_sim::{SceneConfig, SceneName};
+use restage_authoring::stage_sim::{RigVariation, SceneConfig, SceneName};
 
 use crate::steps::simulate::Size;
 use doc::Steps;
@@ -149,6 +149,7 @@ fn open_or_create(args: &GuiArgs) -> Result<Opened> {
             projectors: 3,
             deteriorate: true,
             plinth: false,
+            rig: RigVariation::Seeded,
         };
         scene.validate()?;
         if args.photo_only {

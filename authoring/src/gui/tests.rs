@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, OnceLock};
 
 use restage_authoring::acquire::AcquireConfig;
-use restage_authoring::stage_sim::{SceneConfig, SceneName};
+use restage_authoring::stage_sim::{RigVariation, SceneConfig, SceneName};
 
 use super::doc::{Doc, HintDiff, RegionSpec, Scene, Step, Steps};
 use super::jobs::{Msg, Request, Runner};
@@ -27,6 +27,7 @@ fn template() -> &'static Path {
             projectors: 3,
             deteriorate: true,
             plinth: false,
+            rig: RigVariation::Nominal,
         };
         let acq = AcquireConfig { dot_spacing: 4, ramp_levels: 5, ..AcquireConfig::default() };
         let opened = Project::create_virtual(&dir, &scene, &acq).unwrap();

@@ -87,21 +87,44 @@ pub struct Hit {
     pub part: Part,
 }
 
+/// How a built-in object departs from its profile's nominal form: the radius at height `h`
+/// is `profile.radius(h) * scale * (1 + taper * (h / height - 1/2))` (the height is kept, so
+/// the painted design keeps its bands).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Shape {
+    pub scale: f64,
+    pub taper: f64,
+}
+
+impl Shape {
+    pub const NOMINAL: Shape = Shape { scale: 1.0, taper: 0.0 };
+
+    fn radius(&self, profile: &Profile, h: f64) -> f64 {
+        profile.radius(h) * self.scale * (1.0 + self.taper * (h / profile.height() - 0.5))
+    }
+}
+
 impl Solid {
     /// `facing` is a direction perpendicular-ish to the axis that azimuth 0 points along.
     pub fn new(profile: Profile, base: V3, axis: V3, facing: V3) -> Self {
+        Self::shaped(profile, Shape::NOMINAL, base, axis, facing)
+    }
+
+    /// [`Solid::new`] with the profile's radius reshaped by `shape`.
+    pub fn shaped(profile: Profile, shape: Shape, base: V3, axis: V3, facing: V3) -> Self {
         let axis = axis.normalize();
         let e1 = (facing - axis * facing.dot(&axis)).normalize();
         let e2 = axis.cross(&e1);
         let height = profile.height();
         let dh = height / (TABLE - 1) as f64;
-        let radius: Vec<f64> = (0..TABLE).map(|i| profile.radius(i as f64 * dh)).collect();
+        let r = |h: f64| shape.radius(&profile, h);
+        let radius: Vec<f64> = (0..TABLE).map(|i| r(i as f64 * dh)).collect();
         let slope: Vec<f64> = (0..TABLE)
             .map(|i| {
                 let h = i as f64 * dh;
                 let e = dh * 0.5;
-                (profile.radius((h + e).min(height)) - profile.radius((h - e).max(0.0)))
-                    / ((h + e).min(height) - (h - e).max(0.0))
+                (r((h + e).min(height)) - r((h - e).max(0.0))) / ((h + e).min(height) - (h - e).max(0.0))
             })
             .collect();
         let max_slope = slope.iter().fold(0.0f64, |m, s| m.max(s.abs()));

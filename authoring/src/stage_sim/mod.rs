@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-use self::geometry::{Part, Profile, Scene, Solid, V3};
+use self::geometry::{Part, Profile, Scene, Shape, Solid, V3};
 use self::optics::{CameraSpec, Integrator, ProjectorSpec, SimProjector};
 use self::paint::{Design, Deterioration, Palette};
 use self::paint::{PANEL_RADIUS_MM, PANEL_THICKNESS_MM, PANEL_UNROLL_MM};
@@ -157,6 +157,44 @@ pub struct SceneConfig {
     /// reflecting light onto it). Absent in older configs: no plinth.
     #[serde(default)]
     pub plinth: bool,
+    /// Whether the rig and the object vary with the seed. Absent in older configs: nominal.
+    #[serde(default)]
+    pub rig: RigVariation,
+}
+
+/// Whether a built-in stage's geometry comes from its seed as well as its paint and
+/// deterioration, so that a new seed also tests calibration on a new rig.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "snake_case")]
+pub enum RigVariation {
+    /// The same projector placement, lenses and object form at every seed.
+    #[default]
+    Nominal,
+    /// Drawn from the seed alone (so every scene at one seed shares the rig): each
+    /// projector's azimuth ±4°, elevation ±3°, distance ±60 mm and focal length ±6 %; the
+    /// camera's focal length ±5 %; the round objects' radius ±8 % and a taper of ±12 %.
+    Seeded,
+}
+
+impl RigVariation {
+    /// Applies the variation to the built-in projector and camera specs; returns the shape
+    /// of a round object.
+    fn apply(self, seed: u64, projectors: &mut [ProjectorSpec], camera: &mut CameraSpec) -> Shape {
+        if self == RigVariation::Nominal {
+            return Shape::NOMINAL;
+        }
+        // Its own stream: paint, deterioration and radiometry draw as they always did.
+        let mut rng = ChaCha8Rng::seed_from_u64(mix(seed, 0x51a6_0000));
+        camera.focal_per_height *= 1.0 + rng.gen_range(-0.05..0.05);
+        let shape = Shape { scale: 1.0 + rng.gen_range(-0.08..0.08), taper: rng.gen_range(-0.12..0.12) };
+        for p in projectors {
+            p.azimuth_deg += rng.gen_range(-4.0..4.0);
+            p.elevation_deg += rng.gen_range(-3.0..3.0);
+            p.distance_mm += rng.gen_range(-60.0..60.0);
+            p.focal_per_height *= 1.0 + rng.gen_range(-0.06..0.06);
+        }
+        shape
+    }
 }
 
 impl Default for SceneConfig {
@@ -169,6 +207,7 @@ impl Default for SceneConfig {
             projectors: 3,
             deteriorate: true,
             plinth: false,
+            rig: RigVariation::Nominal,
         }
     }
 }
@@ -253,6 +292,11 @@ pub const VIEW_DOWN_DEG: f64 = 4.0;
 impl Setup {
     pub fn from_config(cfg: &SceneConfig) -> Result<Self, StageSimError> {
         cfg.validate()?;
+        let mut camera_spec = CameraSpec::default();
+        let n = cfg.projectors as usize;
+        let mut projector_specs: Vec<ProjectorSpec> =
+            (0..n).map(|k| ProjectorSpec::default_for(k, n, cfg.seed)).collect();
+        let shape = cfg.rig.apply(cfg.seed, &mut projector_specs, &mut camera_spec);
         let (centre, up) = object_axis();
         let profile = cfg.scene.profile();
         let height = profile.height();
@@ -263,7 +307,7 @@ impl Setup {
             let base = centre - normal * (height * 0.5);
             (Solid::new(profile, base, normal, V3::new(1.0, 0.0, 0.0)), 2.0 * PANEL_RADIUS_MM)
         } else {
-            (Solid::new(profile, centre - up * (height * 0.5), up, -centre), height)
+            (Solid::shaped(profile, shape, centre - up * (height * 0.5), up, -centre), height)
         };
         let base = solid.base;
         let mut solids = vec![solid];
@@ -276,17 +320,14 @@ impl Setup {
             ));
             Plinth { solid: 1, albedo: PLINTH_ALBEDO, radius: PLINTH_RADIUS_MM }
         });
-        let camera_spec = CameraSpec::default();
-        let n = cfg.projectors as usize;
-        let projector_specs: Vec<ProjectorSpec> =
-            (0..n).map(|k| ProjectorSpec::default_for(k, n, cfg.seed)).collect();
         let projectors = build_projectors(&projector_specs, cfg.projector);
         Ok(Self {
             label: format!(
-                "virtual stage: {}{}, seed {}",
+                "virtual stage: {}{}, seed {}{}",
                 cfg.scene.name(),
                 if cfg.plinth { " on a plinth" } else { "" },
-                cfg.seed
+                cfg.seed,
+                if cfg.rig == RigVariation::Seeded { ", rig from the seed" } else { "" },
             ),
             seed: cfg.seed,
             camera: camera_spec.intrinsics(cfg.camera[0], cfg.camera[1]),

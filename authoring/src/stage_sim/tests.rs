@@ -409,3 +409,79 @@ fn the_plinth_is_seen_and_lit_but_not_object_and_lights_the_foot() {
     let (h, _, _) = solid.local(&V3::from(peak_on.point_mm));
     assert!((0.0..=300.0 + 1e-6).contains(&h), "the peak lies on the object, at height {h}");
 }
+
+#[test]
+fn a_seeded_rig_varies_with_the_seed_and_keeps_the_object_in_view_and_lit() {
+    let seeded = |scene, seed| SceneConfig { rig: RigVariation::Seeded, ..SceneConfig::tiny(scene, seed) };
+    let mut focals = Vec::new();
+    for seed in [2, 3, 4, 5, 11, 12, 101] {
+        let nominal = Setup::from_config(&SceneConfig::tiny(SceneName::Vase, seed)).unwrap();
+        let a = Setup::from_config(&seeded(SceneName::Vase, seed)).unwrap();
+        // The rig depends on the seed alone: every scene at one seed shares it.
+        let b = Setup::from_config(&seeded(SceneName::Panel, seed)).unwrap();
+        assert_eq!(a.projector_specs, b.projector_specs);
+        assert_eq!(a.camera_spec, b.camera_spec);
+        for (s, n) in a.projector_specs.iter().zip(&nominal.projector_specs) {
+            assert!((s.azimuth_deg - n.azimuth_deg).abs() <= 4.0 && s.azimuth_deg != n.azimuth_deg);
+            assert!((s.elevation_deg - n.elevation_deg).abs() <= 3.0);
+            assert!((s.distance_mm - n.distance_mm).abs() <= 60.0);
+            assert!((s.focal_per_height / n.focal_per_height - 1.0).abs() <= 0.06);
+            // Radiometry and the paint draw as they did.
+            assert_eq!((s.gamma, s.lux_at_1m, s.blur_px), (n.gamma, n.lux_at_1m, n.blur_px));
+        }
+        focals.push(a.camera_spec.focal_per_height);
+        let r = a.scene.solids[0].radius_at(115.0) / nominal.scene.solids[0].radius_at(115.0);
+        assert!((r - 1.0).abs() <= 0.08 * 1.07 + 1e-9, "radius ratio {r}");
+        for scene in [SceneName::Vase, SceneName::Bowl, SceneName::Jar] {
+            let stage = VirtualStage::new(&seeded(scene, seed)).unwrap();
+            let (w, h) = (stage.camera().width as usize, stage.camera().height as usize);
+            let px = stage.pixels();
+            let object: Vec<usize> = (0..px.len()).filter(|&i| px[i].is_object() && !px[i].mixed).collect();
+            assert!(object.len() > px.len() / 10, "{} seed {seed}: {} object px", scene.name(), object.len());
+            let on_border = |i: usize| [0, w - 1].contains(&(i % w)) || [0, h - 1].contains(&(i / w));
+            assert!(
+                !px.iter().enumerate().any(|(i, p)| p.is_object() && on_border(i)),
+                "{} seed {seed}",
+                scene.name()
+            );
+            // Every projector's light still falls on the object, wherever it stands.
+            let white = vec![RgbImage::from_pixel(128, 96, Rgb([255; 3])); 3];
+            let img = stage.render(&white, false).unwrap();
+            let lit = object.iter().filter(|&&i| img.data[i][1] > 0.02).count();
+            let nom = VirtualStage::new(&SceneConfig::tiny(scene, seed)).unwrap();
+            let npx = nom.pixels();
+            let nobj: Vec<usize> = (0..npx.len()).filter(|&i| npx[i].is_object() && !npx[i].mixed).collect();
+            let nimg = nom.render(&white, false).unwrap();
+            let nlit = nobj.iter().filter(|&&i| nimg.data[i][1] > 0.02).count();
+            // Dark paint under white light stays under the threshold too: compare with the
+            // nominal rig rather than with all.
+            let (share, nominal_share) = (lit as f64 / object.len() as f64, nlit as f64 / nobj.len() as f64);
+            assert!(
+                share > nominal_share - 0.03,
+                "{} seed {seed}: {share} of the object lit, nominal {nominal_share}",
+                scene.name()
+            );
+        }
+    }
+    focals.dedup();
+    assert_eq!(focals.len(), 7, "the camera's focal length varies: {focals:?}");
+}
+
+#[test]
+fn configs_without_a_rig_field_keep_the_nominal_rig() {
+    let json = r#"{"scene": "jar", "seed": 9, "camera": [160, 120], "projector": [128, 96],
+        "projectors": 3, "deteriorate": true}"#;
+    let cfg: SceneConfig = serde_json::from_str(json).unwrap();
+    assert_eq!(cfg.rig, RigVariation::Nominal);
+    let old = Setup::from_config(&cfg).unwrap();
+    assert_eq!(
+        old.projector_specs,
+        Setup::from_config(&SceneConfig::tiny(SceneName::Jar, 9)).unwrap().projector_specs
+    );
+    let seeded: SceneConfig = serde_json::from_str(
+        &serde_json::to_string(&SceneConfig { rig: RigVariation::Seeded, ..cfg }).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(seeded.rig, RigVariation::Seeded);
+    assert_ne!(Setup::from_config(&seeded).unwrap().projector_specs, old.projector_specs);
+}

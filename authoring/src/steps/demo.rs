@@ -11,7 +11,7 @@ use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::contact_sheet;
 use restage_authoring::gpu::Device;
 use restage_authoring::imgio::LinearImage;
-use restage_authoring::stage_sim::{SceneConfig, SceneName};
+use restage_authoring::stage_sim::{RigVariation, SceneConfig, SceneName};
 
 use super::Progress;
 use super::demo_chain::ChainSummary;
@@ -82,6 +82,8 @@ pub fn demo_configs(seed: u64) -> (SceneConfig, AcquireConfig) {
         projectors: 3,
         deteriorate: true,
         plinth: false,
+        // The reference rig: the README's demo figures and the window's screenshots are of it.
+        rig: RigVariation::Nominal,
     };
     let acq = AcquireConfig { dot_spacing: 8, ramp_levels: 9, ..AcquireConfig::default() };
     (scene, acq)

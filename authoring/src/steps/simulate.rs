@@ -8,7 +8,7 @@ use super::Progress;
 use anyhow::{Context, Result};
 use restage_authoring::acquire::AcquireConfig;
 use restage_authoring::capture_set::CaptureManifest;
-use restage_authoring::stage_sim::{SceneConfig, VirtualStage};
+use restage_authoring::stage_sim::{RigVariation, SceneConfig, VirtualStage};
 
 /// A `WIDTHxHEIGHT` size on the command line.
 #[derive(Clone, Copy, Debug)]
@@ -62,9 +62,14 @@ pub struct Args {
     /// saved rig: `restage-author rig`).
     #[arg(long, default_value = "vase")]
     pub scene: String,
-    /// Seed for the deterioration, the projectors' radiometry and the camera noise.
+    /// Seed for the deterioration, the projectors' radiometry and the camera noise, and
+    /// (with `--rig seeded`) the rig's placement and lenses and the object's form.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// `seeded`: projector placement and lenses, the camera's focal length and the object's
+    /// form vary with the seed; `nominal`: the demo's rig at every seed.
+    #[arg(long, value_enum, default_value = "seeded")]
+    pub rig: RigVariation,
     /// Capture directory to write (created if needed; files in it are replaced).
     #[arg(long)]
     pub out: PathBuf,
@@ -100,6 +105,7 @@ impl Args {
             projectors: self.projectors,
             deteriorate: !self.pristine,
             plinth: self.plinth,
+            rig: self.rig,
         };
         scene.validate()?;
         let acq = self.patterns.config(AcquireConfig::default().settle)?;
