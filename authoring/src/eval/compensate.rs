@@ -578,7 +578,8 @@ mod whole_surface {
             camera: [200, 150],
             projector: [160, 120],
             plinth,
-            rig: RigVariation::Seeded,
+            // The README's table of these peaks is on the nominal rig.
+            rig: RigVariation::Nominal,
             ..SceneConfig::default()
         }
     }
