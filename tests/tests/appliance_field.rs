@@ -45,8 +45,8 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
         "",
         &format!("control_socket = {sock:?}"),
     );
-    // A newer bundle of the same object that takes seconds to verify (many large scenes): 40
-    // scenes verified in 0.97 s on an idle 2-core machine, under the 1 s this test needs.
+    // A newer bundle of the same object that takes seconds to verify (many large scenes): 60
+    // verify in 3-4.5 s on a 2-core machine (debug build); the test needs more than 1 s.
     let slow_spec =
         ExampleSpec { scenes: 60, width: 1280, height: 960, step: 2, version: 4, ..ExampleSpec::small() };
     let slow = stage.path("slow.bundle");
@@ -57,8 +57,13 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
 
     let child = stage.spawn(&config);
     wait_status(&sock, Duration::from_secs(30), |v| v["state"] == "idle");
-    assert!(ask(&sock, "press", Duration::from_secs(5)).unwrap().contains("showing"));
+    // Installed as an installer does: written and synced first, renamed in place during the
+    // showing. Copying the bundle during the showing left its 600 MB dirty on the same
+    // filesystem, and the ledger's reservation for the fade waited behind their write-back
+    // in its fsync: 650-1030 ms showings, from the disk, not from verification.
     std::fs::copy(&slow, stage.path("state/.next.bundle")).unwrap();
+    std::fs::File::open(stage.path("state/.next.bundle")).unwrap().sync_all().unwrap();
+    assert!(ask(&sock, "press", Duration::from_secs(5)).unwrap().contains("showing"));
     std::fs::rename(stage.path("state/.next.bundle"), stage.path("state/active.bundle")).unwrap();
     let asked = Instant::now();
     // While the worker verifies, the loop answers and the timer runs.
@@ -87,8 +92,8 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
     // the event loop, as before, let the showing run for the whole verification). Later
     // stretches are the new bundle's idle scene (other frames).
     // The slack is for a loop sharing a 2-core machine with the verification worker and
-    // the test harness (466 ms late seen while other tests ran beside it, before it ran
-    // alone). Verifying on the loop would hold the showing for the whole verification.
+    // the test harness (401-402 ms measured alone on an idle one). Verifying on the loop
+    // would hold the showing for the whole verification.
     assert!(stretches[0] <= 400.0 + 600.0 && stretches[0] < 500.0 * verify_s, "{stretches:?}");
     assert!(verify_s > 1.0, "the slow bundle verified in {verify_s:.2} s: the test shows nothing");
     let ledger =
