@@ -13,6 +13,7 @@ pub mod feedback;
 pub mod hours;
 pub mod identify;
 pub mod input;
+pub mod install;
 pub mod ledger;
 pub mod loader;
 pub mod logging;

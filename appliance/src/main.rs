@@ -354,21 +354,11 @@ fn install(bundle: &Path, config: &Path) -> Result<()> {
     );
     drop(verified);
 
-    // Copy next to the target, flush, rename over it, flush the directory: a crash leaves the
-    // old bundle or the new one, never a mix.
+    // A crash leaves the old bundle or the new one, never a mix; a showing on the running
+    // appliance does not wait behind the copy.
     let target = config.bundle_path();
-    let dir = target.parent().context("the bundle path has no directory")?;
-    let tmp = dir.join(format!(".install-{}.tmp", std::process::id()));
-    let copy = || -> std::io::Result<()> {
-        std::fs::copy(bundle, &tmp)?;
-        std::fs::File::open(&tmp)?.sync_all()?;
-        std::fs::rename(&tmp, &target)?;
-        std::fs::File::open(dir)?.sync_all()
-    };
-    if let Err(e) = copy() {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(e).with_context(|| format!("installing {} as {}", bundle.display(), target.display()));
-    }
+    restage_appliance::install::put_in_place(bundle, &target)
+        .with_context(|| format!("installing {} as {}", bundle.display(), target.display()))?;
     // The file now in place must be the one verified (a bundle changed between verify and
     // copy would otherwise slip in): verify the installed copy again.
     loader::open_verified(&target, &config.trust_dir, &ledger, now, &opts)

@@ -1,12 +1,14 @@
-//! `restage-appliance-under-test run --config FILE` and `... verify BUNDLE --trust DIR`: the
-//! appliance's `run` and `verify` (the same library entry points `restage-appliance run` and
-//! `restage-appliance verify` call, with default light-check limits), built in this crate so
-//! its end-to-end tests can start it as a real process and kill it.
+//! `restage-appliance-under-test run --config FILE`, `... verify BUNDLE --trust DIR` and
+//! `... install BUNDLE --to FILE`: the appliance's `run`, `verify` and the copy `install` ends
+//! with (the same library entry points `restage-appliance` calls, with default light-check
+//! limits), built in this crate so its end-to-end tests can start it as a real process and
+//! kill it.
 
 use std::path::Path;
 use std::process::ExitCode;
 
-const USAGE: &str = "usage: restage-appliance-under-test run --config FILE | verify BUNDLE --trust DIR";
+const USAGE: &str = "usage: restage-appliance-under-test run --config FILE | verify BUNDLE --trust DIR \
+                     | install BUNDLE --to FILE";
 
 fn main() -> ExitCode {
     tracing_subscriber::fmt().with_writer(std::io::stderr).init();
@@ -28,6 +30,10 @@ fn main() -> ExitCode {
             )
             .map(|report| print!("{report}"))
             .map_err(|e| e.to_string())
+        }
+        [_, "install", bundle, "--to", target] => {
+            restage_appliance::install::put_in_place(Path::new(bundle), Path::new(target))
+                .map_err(|e| e.to_string())
         }
         _ => {
             eprintln!("{USAGE}");

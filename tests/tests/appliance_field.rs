@@ -34,23 +34,29 @@ fn stop(mut child: std::process::Child) {
     let _ = child.wait();
 }
 
-#[test]
-fn a_slow_reload_while_lit_never_extends_a_showing() {
-    let _alone = TIMING.write().unwrap_or_else(|e| e.into_inner());
+/// A stage with showings of 400 ms (the configuration shortens the bundle's second) and a
+/// control socket, and a newer bundle of the same object, version 4, that takes seconds to
+/// verify and to copy (60 large scenes, 600 MB: 3-4.5 s to verify on a 2-core machine, debug
+/// build). Returns the stage, its socket, its configuration and the new bundle.
+fn large_bundle_stage() -> (Stage, std::path::PathBuf, std::path::PathBuf, std::path::PathBuf) {
     let stage = Stage::new(ExampleSpec::small());
     let sock = stage.path("control.sock");
-    // Showings of 400 ms (the configuration shortens the bundle's second).
     let config = stage.config(
         "fade_ms = 100\nfade_fps = 20\nmin_press_interval_ms = 20\nmax_showing_ms = 400",
         "",
         &format!("control_socket = {sock:?}"),
     );
-    // A newer bundle of the same object that takes seconds to verify (many large scenes): 60
-    // verify in 3-4.5 s on a 2-core machine (debug build); the test needs more than 1 s.
-    let slow_spec =
+    let spec =
         ExampleSpec { scenes: 60, width: 1280, height: 960, step: 2, version: 4, ..ExampleSpec::small() };
-    let slow = stage.path("slow.bundle");
-    stage.write_bundle(&slow_spec, OBJECT, &slow);
+    let bundle = stage.path("large.bundle");
+    stage.write_bundle(&spec, OBJECT, &bundle);
+    (stage, sock, config, bundle)
+}
+
+#[test]
+fn a_slow_reload_while_lit_never_extends_a_showing() {
+    let _alone = TIMING.write().unwrap_or_else(|e| e.into_inner());
+    let (stage, sock, config, slow) = large_bundle_stage();
     let t = Instant::now();
     verify_file(&slow, &stage.path("trust"), &VerifyOptions::at(1_800_000_000)).unwrap();
     let verify_s = t.elapsed().as_secs_f64();
@@ -109,6 +115,64 @@ fn a_slow_reload_while_lit_never_extends_a_showing() {
     let ended = s.last_showings.first().expect("the showing was recorded").ended_ms;
     let loaded = s.last_events.iter().find(|e| e.kind == "load" && e.detail.contains("version 4")).unwrap();
     assert!(loaded.at_ms >= ended, "swapped in at {} during the showing (ended {ended})", loaded.at_ms);
+}
+
+/// An operator installs a large bundle while a visitor watches, and the new bundle plays after
+/// the reload. Every change of light waits for its ledger reservation to reach the disk
+/// (fsync), and an fsync waits behind whatever the filesystem has dirty: copied in one piece,
+/// the bundle's 600 MB of write-back held the fade's reservation, and the showing's full
+/// light, past its timer.
+#[test]
+fn installing_a_large_bundle_while_lit_never_extends_a_showing() {
+    let _alone = TIMING.write().unwrap_or_else(|e| e.into_inner());
+    let (stage, sock, config, big) = large_bundle_stage();
+    let child = stage.spawn(&config);
+    wait_status(&sock, Duration::from_secs(30), |v| v["state"] == "idle");
+
+    // The copy `restage-appliance install` makes once the bundle verified.
+    let mut install = Command::new(BIN)
+        .arg("install")
+        .arg(&big)
+        .arg("--to")
+        .arg(stage.path("state/active.bundle"))
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The visitor presses as the copy begins (the installer's temporary file appears).
+    let copying = || {
+        std::fs::read_dir(stage.path("state"))
+            .unwrap()
+            .flatten()
+            .any(|e| e.file_name().to_string_lossy().starts_with(".install-"))
+    };
+    let t = Instant::now();
+    while !copying() {
+        if install.try_wait().unwrap().is_some() {
+            let out = install.wait_with_output().unwrap();
+            panic!(
+                "the installer finished before its copy was seen: {}",
+                String::from_utf8_lossy(&out.stderr)
+            );
+        }
+        assert!(t.elapsed() < Duration::from_secs(120), "no copy within 120 s");
+        std::thread::sleep(Duration::from_millis(2));
+    }
+    assert!(ask(&sock, "press", Duration::from_secs(5)).unwrap().contains("showing"));
+    let out = install.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(ask(&sock, "reload", Duration::from_secs(120)).unwrap().starts_with("ok"));
+    wait_status(&sock, Duration::from_secs(60), |v| v["bundle"]["version"] == 4);
+    stop(child);
+    stage.mark_dark();
+
+    let stretches = stage.showing_stretches_ms(Some(&stage.first_lit()));
+    eprintln!("FIGURES install while lit: showings {stretches:?} ms (limit 400 ms)");
+    // The same slack as the slow reload's: a loop sharing two cores with the installer. It
+    // catches a gross stall only: on an idle 2-core machine the copy in flushed pieces gave
+    // 400-407 ms, the copy in one piece 448-753 ms (the CI machine once 1028 ms).
+    assert!(!stretches.is_empty() && stretches[0] <= 400.0 + 600.0, "{stretches:?}");
 }
 
 #[test]
