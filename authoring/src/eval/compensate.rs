@@ -27,6 +27,11 @@ pub trait TruePhysics {
     /// surface, wherever the light lands, seen by the camera or not. A stage that knows no
     /// surface beyond the camera's pixels (the synthetic one) returns its camera-pixel peak.
     fn surface_peak_lux(&self, frames: &[RgbImage]) -> f64;
+    /// Which camera pixels see a chip (paint lost down to the ground), where the stage knows;
+    /// `None` where it does not.
+    fn chipped(&self) -> Option<Vec<bool>> {
+        None
+    }
 }
 
 impl TruePhysics for VirtualStage {
@@ -45,6 +50,10 @@ impl TruePhysics for VirtualStage {
 
     fn surface_peak_lux(&self, frames: &[RgbImage]) -> f64 {
         self.surface_peak(frames).expect("frames were made for this stage").lux
+    }
+
+    fn chipped(&self) -> Option<Vec<bool>> {
+        Some(self.pixels().iter().map(|p| p.is_object() && p.chipped).collect())
     }
 }
 
@@ -140,15 +149,62 @@ pub fn whole_object(comp: &Compensation, view: &[[f32; 3]], target: &LinearImage
         return (f64::NAN, f64::NAN, object.len());
     }
     let lit = object.iter().filter(|&&i| comp.weights[i * kn..(i + 1) * kn].iter().any(|&w| w > 0.0)).count();
-    let de: f64 = object
-        .iter()
-        .map(|&i| {
-            let v = view[i].map(|c| c as f64 / s);
-            ciede2000(linear_srgb_to_lab(v), linear_srgb_to_lab(target.data[i].map(f64::from)))
+    let (de, _) = region_error(comp, view, target, &object);
+    (lit as f64 / object.len() as f64, de, object.len())
+}
+
+/// Over the camera pixels `pixels`, lit or not: the mean CIEDE2000 of the view (after the
+/// global scale) against the target, and the view's mean luminance over the target's (above
+/// 1: brighter than the target, as a halo is).
+pub fn region_error(
+    comp: &Compensation,
+    view: &[[f32; 3]],
+    target: &LinearImage,
+    pixels: &[usize],
+) -> (f64, f64) {
+    let s = comp.stats.scale;
+    if pixels.is_empty() || s <= 0.0 {
+        return (f64::NAN, f64::NAN);
+    }
+    let (mut de, mut seen, mut wanted) = (0.0, 0.0, 0.0);
+    for &i in pixels {
+        let v = view[i].map(|c| c as f64 / s);
+        let t = target.data[i].map(f64::from);
+        let d = ciede2000(linear_srgb_to_lab(v), linear_srgb_to_lab(t));
+        if d.is_finite() {
+            de += d;
+        }
+        seen += crate::color::luminance(v);
+        wanted += crate::color::luminance(t);
+    }
+    (de / pixels.len() as f64, seen / wanted)
+}
+
+/// Width of the ring around chips whose error is reported apart (camera pixels): where a
+/// projector pixel's blurred footprint spills the chip's compensation onto the paint around
+/// it, or the paint's onto the chip.
+pub const CHIP_RING_PX: i64 = 2;
+
+/// The chipped object pixels, and the ring of object pixels within [`CHIP_RING_PX`]
+/// (Euclidean, pixel centres) of a chip but not in one. `object` says which pixels count.
+pub fn chip_regions(chipped: &[bool], object: &[bool], width: usize) -> (Vec<usize>, Vec<usize>) {
+    let height = chipped.len() / width.max(1);
+    let r = CHIP_RING_PX;
+    let near_chip = |i: usize| {
+        let (x, y) = ((i % width) as i64, (i / width) as i64);
+        (-r..=r).any(|dy| {
+            (-r..=r).any(|dx| {
+                let (u, v) = (x + dx, y + dy);
+                dx * dx + dy * dy <= r * r
+                    && (0..width as i64).contains(&u)
+                    && (0..height as i64).contains(&v)
+                    && chipped[v as usize * width + u as usize]
+            })
         })
-        .filter(|d| d.is_finite())
-        .sum();
-    (lit as f64 / object.len() as f64, de / object.len() as f64, object.len())
+    };
+    let chips = (0..chipped.len()).filter(|&i| object[i] && chipped[i]).collect();
+    let ring = (0..chipped.len()).filter(|&i| object[i] && !chipped[i] && near_chip(i)).collect();
+    (chips, ring)
 }
 
 /// Highest true irradiance (lux, max channel, room light included) at the camera's pixels on
@@ -266,6 +322,30 @@ pub fn visitor_view(
             "dE00",
         ),
     ];
+    if let Some(chipped) = truth.chipped() {
+        let object: Vec<bool> = target.data.iter().map(|t| t.iter().any(|&c| c > 0.0)).collect();
+        let (chips, ring) = chip_regions(&chipped, &object, target.width as usize);
+        let (chip_de, chip_bright) = region_error(&comp, &view, target, &chips);
+        let (ring_de, ring_bright) = region_error(&comp, &view, target, &ring);
+        rows.extend([
+            Metric::info(STEP, &name("chip pixels"), chips.len() as f64, "px"),
+            Metric::info(STEP, &name("CIEDE2000 mean in chips"), chip_de, "dE00"),
+            Metric::info(STEP, &name("luminance in chips over the target's"), 100.0 * chip_bright, "%"),
+            Metric::below(
+                STEP,
+                &name(&format!("CIEDE2000 mean in a {CHIP_RING_PX} px ring around chips")),
+                ring_de,
+                "dE00",
+                3.0,
+            ),
+            Metric::info(
+                STEP,
+                &name("luminance in the chip ring over the target's"),
+                100.0 * ring_bright,
+                "%",
+            ),
+        ]);
+    }
     let camera_peak = true_peak(truth, &comp.frames);
     let surface_peak = truth.surface_peak_lux(&comp.frames);
     rows.push(Metric::info(STEP, &name("E_bound"), params.e_bound_lux, "lx"));
@@ -306,17 +386,24 @@ pub fn evaluate_capture(
     let stage = VirtualStage::new(&config)?;
     let truth = stage.truth();
     let (cam, cal) = (&truth.camera, &calibrated.camera);
+    // Calibration takes the camera's intrinsics from the capture: a model of another capture
+    // of the same sizes (another seed's rig) has another lens.
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(1.0);
     if (cam.width, cam.height) != (cal.width, cal.height)
         || calibrated.projectors.len() != truth.projectors.len()
+        || !(same(cam.fx, cal.fx) && same(cam.fy, cal.fy) && same(cam.cx, cal.cx) && same(cam.cy, cal.cy))
     {
         anyhow::bail!(
-            "the calibrated model ({}x{} camera, {} projectors) is not of the capture in {} ({}x{}, {})",
+            "the calibrated model ({}x{} camera, fx {:.2}, {} projectors) is not of the capture in {} \
+             ({}x{}, fx {:.2}, {})",
             cal.width,
             cal.height,
+            cal.fx,
             calibrated.projectors.len(),
             capture.display(),
             cam.width,
             cam.height,
+            cam.fx,
             truth.projectors.len()
         );
     }
@@ -468,10 +555,74 @@ mod tests {
         );
         let whole = "CIEDE2000 mean over the whole object, unlit pixels included";
         assert!(get("calibrated", whole) > get("true model", whole) + 1.0, "{}", crate::eval::table(&rows));
-        // A model of another capture is refused, naming it.
-        let other = VirtualStage::new(&SceneConfig { camera: [200, 150], ..cfg }).unwrap().truth();
-        let err = evaluate_capture(dir.path(), &other, &params).unwrap_err();
-        assert!(format!("{err:#}").contains("not of the capture"), "{err:#}");
+        // A model of another capture is refused, naming it: another size, or the same size
+        // on another seed's rig (another lens).
+        for other in
+            [SceneConfig { camera: [200, 150], ..cfg.clone() }, SceneConfig { seed: 5, ..cfg.clone() }]
+        {
+            let other = VirtualStage::new(&other).unwrap().truth();
+            let err = evaluate_capture(dir.path(), &other, &params).unwrap_err();
+            assert!(format!("{err:#}").contains("not of the capture"), "{err:#}");
+        }
+    }
+
+    #[test]
+    fn the_chip_ring_is_the_object_within_two_pixels_of_a_chip() {
+        let (w, h) = (9, 7);
+        let mut chipped = vec![false; w * h];
+        chipped[3 * w + 4] = true;
+        let mut object = vec![true; w * h];
+        object[3 * w + 6] = false; // two to the right: off the object
+        let (chips, ring) = chip_regions(&chipped, &object, w);
+        assert_eq!(chips, vec![3 * w + 4]);
+        // The disc of radius 2 holds 13 pixel centres: less the chip and the pixel off the object.
+        assert_eq!(ring.len(), 11, "{ring:?}");
+        for i in ring {
+            let (dx, dy) = ((i % w) as i64 - 4, (i / w) as i64 - 3);
+            assert!(dx * dx + dy * dy <= 4 && object[i] && !chipped[i]);
+        }
+        // A chip on the border: the ring stays inside the image.
+        let mut corner = vec![false; w * h];
+        corner[0] = true;
+        let (_, ring) = chip_regions(&corner, &vec![true; w * h], w);
+        assert_eq!(ring.len(), 5, "{ring:?}");
+    }
+
+    /// The chip rows count the stage's chipped pixels, and the ring row sees light spilled
+    /// around the chips that the rest of the object does not show.
+    #[test]
+    fn chips_and_their_rings_are_reported_apart() {
+        let cfg = SceneConfig::tiny(SceneName::Bowl, 2);
+        let stage = VirtualStage::new(&cfg).unwrap();
+        let model = stage.truth();
+        let target = pristine_target(&stage);
+        let params = Params::new(150.0, Exponent::Finite(8.0), 0.05).unwrap();
+        let prep = Prepared::new(&model, params.reduction).unwrap();
+        let rows = visitor_view("bowl", &stage, &model, &prep, &target, &params).unwrap();
+        let get = |what: &str| rows.iter().find(|m| m.name == format!("bowl: {what}")).unwrap().value;
+        let chipped = stage.pixels().iter().filter(|p| p.is_object() && p.chipped).count();
+        assert!(chipped > 20, "the scene has chips");
+        assert_eq!(get("chip pixels"), chipped as f64);
+        let ring = get("CIEDE2000 mean in a 2 px ring around chips");
+        assert!(
+            ring.is_finite() && get("CIEDE2000 mean in chips").is_finite(),
+            "{}",
+            crate::eval::table(&rows)
+        );
+
+        // Light added on the ring alone raises the ring's error and leaves the whole object's
+        // nearly as it was.
+        let comp = compensate::compensate_prepared(&model, &prep, &target, &params).unwrap();
+        let mut view = stage.view(&comp.frames);
+        let object: Vec<bool> = target.data.iter().map(|t| t.iter().any(|&c| c > 0.0)).collect();
+        let chipped: Vec<bool> = TruePhysics::chipped(&stage).unwrap();
+        let (_, ring_px) = chip_regions(&chipped, &object, target.width as usize);
+        let (before, _) = region_error(&comp, &view, &target, &ring_px);
+        for &i in &ring_px {
+            view[i] = view[i].map(|c| c * 1.5);
+        }
+        let (after, bright) = region_error(&comp, &view, &target, &ring_px);
+        assert!(after > before + 2.0 && bright > 1.2, "{before} -> {after}, {bright}");
     }
 
     #[test]

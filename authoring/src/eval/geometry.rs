@@ -85,6 +85,12 @@ pub fn evaluate(est: &StageModel, truth: &StageModel) -> Vec<Metric> {
         100.0 * both as f64 / truth_px.max(1) as f64,
         "%",
     ));
+    out.push(Metric::info(
+        STEP,
+        "of the object pixels not reconstructed: on the silhouette (within 2 px)",
+        100.0 * missing_on_silhouette(est, truth),
+        "%",
+    ));
     out.push(Metric::info(STEP, "point error mean", mean, "mm"));
     out.push(Metric::info(STEP, "point error p95", percentile(&mut errs, 0.95), "mm"));
     out.push(Metric::below(STEP, "point error mean / object size", 100.0 * mean / size.max(1e-9), "%", 0.1));
@@ -106,6 +112,28 @@ pub fn evaluate(est: &StageModel, truth: &StageModel) -> Vec<Metric> {
     out.push(Metric::info(STEP, "rotation error (worst projector)", rot_err, "deg"));
     out.push(Metric::info(STEP, "projector position error (worst)", pos_err, "mm"));
     out
+}
+
+/// The share of the object pixels `est` did not reconstruct that lie within 2 px of the
+/// object's silhouette (a truth pixel with no surface), where a pixel's footprint straddles
+/// the edge: what a fill at the rim would reach, against holes inside the object.
+fn missing_on_silhouette(est: &StageModel, truth: &StageModel) -> f64 {
+    let (w, h) = (truth.camera.width as i64, truth.camera.height as i64);
+    let surface = |x: i64, y: i64| {
+        (0..w).contains(&x) && (0..h).contains(&y) && truth.points[(y * w + x) as usize][2].is_finite()
+    };
+    let (mut missing, mut rim) = (0usize, 0usize);
+    for i in 0..truth.points.len().min(est.points.len()) {
+        let (x, y) = (i as i64 % w, i as i64 / w);
+        if !surface(x, y) || est.points[i][2].is_finite() {
+            continue;
+        }
+        missing += 1;
+        if (-2..=2).any(|dy| (-2..=2).any(|dx| !surface(x + dx, y + dy))) {
+            rim += 1;
+        }
+    }
+    rim as f64 / missing.max(1) as f64
 }
 
 /// Linear albedo luminance below which paint counts as dark (a black glaze: about sRGB 60).

@@ -90,8 +90,7 @@ pub struct Hit {
 /// How a built-in object departs from its profile's nominal form: the radius at height `h`
 /// is `profile.radius(h) * scale * (1 + taper * (h / height - 1/2))` (the height is kept, so
 /// the painted design keeps its bands).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Shape {
     pub scale: f64,
     pub taper: f64,
