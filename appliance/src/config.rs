@@ -42,6 +42,13 @@ pub struct Config {
     /// The bundle to play. Default: `STATE_DIR/active.bundle`, where `install` puts it.
     #[serde(default)]
     pub bundle: Option<PathBuf>,
+    /// The bundle inbox (`inbox`): a folder watched for signed `*.bundle` files (where a USB
+    /// stick is mounted, or one operators copy to). One that stands unchanged for a scan (5 s)
+    /// is verified and installed like `restage-appliance install` does, and plays from the
+    /// next showing; it is then moved to `installed/` or `refused/` (with why) in the folder.
+    /// The service must be able to write there. Default: none.
+    #[serde(default)]
+    pub inbox_dir: Option<PathBuf>,
     /// The object on this stage (the bundle manifest's object id). Budgets are kept per
     /// object, so a bundle signed for another id is refused: re-signing the same content
     /// under a new id cannot open a fresh budget. Unset: the stage is pinned to the object

@@ -12,6 +12,7 @@ pub mod export;
 pub mod feedback;
 pub mod hours;
 pub mod identify;
+pub mod inbox;
 pub mod input;
 pub mod install;
 pub mod ledger;

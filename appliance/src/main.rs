@@ -342,27 +342,18 @@ fn install(bundle: &Path, config: &Path) -> Result<()> {
     let ledger = Ledger::open_stage(&config.state_dir, config.local_zone().clone())?;
     let now = ledger_now(&ledger)?;
     let opts = loader::LoadOptions::from_config(&config);
-    let (verified, hash) = loader::open_verified(bundle, &config.trust_dir, &ledger, now, &opts)?;
-    loader::check_object(bundle, &ledger, config.object_id.as_deref(), &verified.manifest.object.id)?;
-    let m = &verified.manifest;
-    eprintln!(
-        "verified: {} version {} ({} scenes), manifest {}",
-        printable(&m.object.id),
-        m.version,
-        m.scenes.len(),
-        &hash[..16]
-    );
-    drop(verified);
-
+    let target = config.bundle_path();
     // A crash leaves the old bundle or the new one, never a mix; a showing on the running
     // appliance does not wait behind the copy.
-    let target = config.bundle_path();
-    restage_appliance::install::put_in_place(bundle, &target)
-        .with_context(|| format!("installing {} as {}", bundle.display(), target.display()))?;
-    // The file now in place must be the one verified (a bundle changed between verify and
-    // copy would otherwise slip in): verify the installed copy again.
-    loader::open_verified(&target, &config.trust_dir, &ledger, now, &opts)
-        .context("the installed copy does not verify")?;
+    let what = restage_appliance::install::install_verified(
+        bundle,
+        &target,
+        &config.trust_dir,
+        &ledger,
+        now,
+        &opts,
+    )?;
+    eprintln!("verified: {what}");
     eprintln!("installed as {}", target.display());
     if let Some(sock) = &config.inputs.control_socket {
         match ask(sock, "reload") {

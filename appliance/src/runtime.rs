@@ -19,7 +19,9 @@ use crate::alerts::{AlertSettings, Alerts, BudgetUse, Facts, ProjectorProblem};
 use crate::clock::{Clock, LedgerClock, SystemTime, TimeSource, monotonic_us};
 use crate::config::{Config, LEDGER_FILE, OutputConfig};
 use crate::feedback::{self, Availability};
+use crate::inbox::Inbox;
 use crate::input::{self, Control, InputEvent};
+use crate::install;
 use crate::ledger::LedgerStatus;
 use crate::ledger::{Ledger, LedgerError};
 use crate::loader::{self, FrameStore, LoadError, Prepared};
@@ -134,6 +136,11 @@ pub struct App {
     reload: Reload,
     /// Verified bundles (or why not) from reload workers.
     prepared_tx: mpsc::Sender<Result<Prepared, LoadError>>,
+    /// The bundle inbox, if configured, and the file its worker is installing.
+    inbox: Option<Inbox>,
+    inbox_busy: Option<PathBuf>,
+    /// Inbox installs' outcomes: what was installed, or why the file was refused.
+    inbox_tx: mpsc::Sender<Result<String, String>>,
     /// When light is tried again after a ledger fault (monotonic ms).
     ledger_retry_ms: Option<u64>,
     /// The wall clock's distance from ledger time when last reported.
@@ -303,6 +310,65 @@ impl App {
             self.reload.in_flight = false;
             let msg = self.refused(format!("cannot start verifying the bundle: {e}"));
             self.answer_reload(format!("error: {msg}"));
+        }
+    }
+
+    /// Takes a bundle that stood unchanged in the inbox since the last scan and installs it on
+    /// a worker thread (verified, copied, the copy verified, renamed over the active bundle);
+    /// `inbox_done` hears the outcome. One at a time.
+    fn scan_inbox(&mut self) {
+        if self.inbox_busy.is_some() {
+            return;
+        }
+        let now = self.now();
+        let Some(file) = self.inbox.as_mut().and_then(|i| i.next_ready(now.mono_ms)) else { return };
+        tracing::info!(file = %file.display(), "bundle inbox: installing");
+        let target = self.config.bundle_path();
+        let trust = self.config.trust_dir.clone();
+        let ledger_path = self.config.state_dir.join(LEDGER_FILE);
+        let zone = self.config.local_zone().clone();
+        let opts = self.load_options();
+        let tx = self.inbox_tx.clone();
+        let src = file.clone();
+        let worker = move || {
+            let result = Ledger::open_read_only(&ledger_path, zone)
+                .map_err(|e| format!("ledger: {e}"))
+                .and_then(|ledger| {
+                    install::install_verified(&src, &target, &trust, &ledger, now.unix_ms, &opts)
+                        .map_err(|e| e.to_string())
+                });
+            let _ = tx.blocking_send(result);
+        };
+        match std::thread::Builder::new().name("restage-inbox".into()).spawn(worker) {
+            Ok(_) => self.inbox_busy = Some(file),
+            Err(e) => tracing::error!(file = %file.display(), "bundle inbox: cannot start installing: {e}"),
+        }
+    }
+
+    /// An inbox install finished: the file leaves the inbox (to `installed/` or `refused/`),
+    /// the journal and the ledger's events say what happened, and an installed bundle is
+    /// reloaded (it plays from the next showing, as after `install`).
+    fn inbox_done(&mut self, result: Result<String, String>) {
+        let Some(file) = self.inbox_busy.take() else { return };
+        let now = self.now();
+        let moved = self.inbox.as_mut().map(|i| i.finish(&file, result.as_ref().err().map(String::as_str)));
+        let whereto = match moved {
+            Some(Ok(to)) => format!("moved to {}", to.display()),
+            Some(Err(e)) => e,
+            None => String::new(),
+        };
+        match result {
+            Ok(what) => {
+                let msg = format!("inbox: {} installed: {what}; {whereto}", file.display());
+                tracing::info!("{msg}");
+                let _ = self.ledger.log_event(now.unix_ms, "install", &msg);
+                self.start_reload(None);
+            }
+            Err(why) => {
+                let msg = format!("inbox: {} refused: {why}; {whereto}", file.display());
+                tracing::error!("{msg}");
+                let _ = self.ledger.log_event(now.unix_ms, "refused", &msg);
+            }
         }
     }
 
@@ -481,6 +547,7 @@ impl App {
     fn housekeeping(&mut self) {
         let now = self.now();
         self.next_housekeeping_ms = now.mono_ms + HOUSEKEEPING_MS;
+        self.scan_inbox();
         let (mut ledger_fault, mut fault, mut dark) = (None, None, None);
         match self.player.state() {
             State::Fault { reason } if reason.starts_with("ledger:") => ledger_fault = Some(reason.clone()),
@@ -830,6 +897,8 @@ pub async fn run_with<S: TimeSource + Clone + 'static>(config: Config, time: S) 
     };
     let watchdog = notifier.watchdog_interval();
     let (prepared_tx, mut prepared_rx) = mpsc::channel(4);
+    let (inbox_tx, mut inbox_rx) = mpsc::channel(1);
+    let inbox_dir = config.inbox_dir.clone();
     let reported_skew_ms = clock.wall_skew_ms();
     let config_alerts = config.alerts.clone();
     let pjlink = config
@@ -873,6 +942,9 @@ pub async fn run_with<S: TimeSource + Clone + 'static>(config: Config, time: S) 
         config,
         reload: Reload::default(),
         prepared_tx,
+        inbox: inbox_dir.as_deref().map(Inbox::new),
+        inbox_busy: None,
+        inbox_tx,
         ledger_retry_ms: None,
         reported_skew_ms,
         hours_change_ms: None,
@@ -911,6 +983,7 @@ pub async fn run_with<S: TimeSource + Clone + 'static>(config: Config, time: S) 
                 None => { app.shutdown(); break; }
             },
             Some(result) = prepared_rx.recv() => app.prepared(result),
+            Some(result) = inbox_rx.recv() => app.inbox_done(result),
             _ = sleep => app.tick(),
             _ = term.recv() => { app.shutdown(); break; }
             _ = int.recv() => { app.shutdown(); break; }

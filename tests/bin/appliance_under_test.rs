@@ -32,7 +32,8 @@ fn main() -> ExitCode {
             .map_err(|e| e.to_string())
         }
         [_, "install", bundle, "--to", target] => {
-            restage_appliance::install::put_in_place(Path::new(bundle), Path::new(target))
+            restage_appliance::install::put_in_place(Path::new(bundle), Path::new(target), |_| true)
+                .map(|_| ())
                 .map_err(|e| e.to_string())
         }
         _ => {

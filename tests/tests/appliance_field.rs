@@ -294,3 +294,64 @@ fn a_restart_during_a_cooldown_keeps_it() {
         "a showing started during the cooldown"
     );
 }
+
+/// An operator drops bundles into the inbox. A correctly signed bundle with one byte changed
+/// is refused: named in the ledger's events, moved to `refused/` with why, the old bundle
+/// playing on. One copied slowly (five pieces two seconds apart) is not taken half-copied;
+/// once whole it is installed, moved to `installed/`, and plays.
+#[test]
+fn the_inbox_refuses_a_tampered_bundle_and_installs_a_whole_one() {
+    let _slot = shared_slot();
+    let stage = Stage::new(ExampleSpec::small());
+    let sock = stage.path("control.sock");
+    let inbox = stage.path("inbox");
+    std::fs::create_dir(&inbox).unwrap();
+    let config = stage.config("", "", &format!("control_socket = {sock:?}"));
+    let text = std::fs::read_to_string(&config).unwrap();
+    std::fs::write(&config, format!("inbox_dir = {inbox:?}\n{text}")).unwrap();
+    let child = stage.spawn(&config);
+    wait_status(&sock, Duration::from_secs(30), |v| v["state"] == "idle");
+
+    let v4 = stage.path("v4.bundle");
+    stage.write_bundle(&ExampleSpec { version: 4, ..ExampleSpec::small() }, OBJECT, &v4);
+    let bytes = std::fs::read(&v4).unwrap();
+    let mut tampered = bytes.clone();
+    let mid = tampered.len() / 2;
+    tampered[mid] ^= 0x40;
+    std::fs::write(inbox.join("tampered.bundle"), &tampered).unwrap();
+    let note = inbox.join("refused/tampered.bundle.txt");
+    let t = Instant::now();
+    while !note.exists() {
+        assert!(t.elapsed() < Duration::from_secs(60), "the tampered bundle was not refused");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let why = std::fs::read_to_string(&note).unwrap();
+    assert!(why.contains("tampered.bundle"), "{why}");
+    assert!(inbox.join("refused/tampered.bundle").exists() && !inbox.join("tampered.bundle").exists());
+    let v = wait_status(&sock, Duration::from_secs(5), |_| true);
+    assert_eq!(v["bundle"]["version"], 3, "the old bundle plays on: {v}");
+
+    // A slow copy, five pieces two seconds apart: the inbox scans (every 5 s) see it
+    // incomplete at least once, and must not take it while it grows.
+    let slow = inbox.join("slow.bundle");
+    let mut f = std::fs::File::create(&slow).unwrap();
+    for piece in bytes.chunks(bytes.len().div_ceil(5)) {
+        use std::io::Write;
+        assert!(!inbox.join("refused/slow.bundle").exists(), "taken half-copied");
+        f.write_all(piece).unwrap();
+        f.flush().unwrap();
+        std::thread::sleep(Duration::from_secs(2));
+    }
+    drop(f);
+    wait_status(&sock, Duration::from_secs(60), |v| v["bundle"]["version"] == 4);
+    assert!(inbox.join("installed/slow.bundle").exists() && !inbox.join("refused/slow.bundle").exists());
+    stop(child);
+
+    let ledger =
+        Ledger::open(&stage.path("state/ledger.sqlite"), restage_appliance::zone::LocalZone::utc()).unwrap();
+    let events = ledger.status(i64::MAX / 4).unwrap().last_events;
+    let said = |kind: &str, what: &str| events.iter().any(|e| e.kind == kind && e.detail.contains(what));
+    assert!(said("refused", "tampered.bundle"), "{events:?}");
+    assert!(said("install", "slow.bundle"), "{events:?}");
+    assert!(said("load", "version 4"), "{events:?}");
+}
