@@ -899,6 +899,9 @@ pub async fn run_with<S: TimeSource + Clone + 'static>(config: Config, time: S) 
     let (prepared_tx, mut prepared_rx) = mpsc::channel(4);
     let (inbox_tx, mut inbox_rx) = mpsc::channel(1);
     let inbox_dir = config.inbox_dir.clone();
+    if let Some(d) = &inbox_dir {
+        tracing::info!(dir = %d.display(), "bundle inbox: watching");
+    }
     let reported_skew_ms = clock.wall_skew_ms();
     let config_alerts = config.alerts.clone();
     let pjlink = config
