@@ -106,6 +106,24 @@ pub fn open_output(config: &Config, inputs: &input::InputSender) -> Result<Box<d
     Ok(out)
 }
 
+/// What a worker thread verifies a bundle with: the configured bundle's path (what it loads,
+/// or where it installs), the trust, the ledger's path and the load options, at one time.
+struct LoadJob {
+    now_unix_ms: i64,
+    bundle: PathBuf,
+    trust: PathBuf,
+    ledger_path: PathBuf,
+    zone: crate::zone::LocalZone,
+    opts: loader::LoadOptions,
+}
+
+impl LoadJob {
+    /// Its own read-only connection: the loop's connection stays the loop's.
+    fn ledger(&self) -> Result<Ledger, crate::ledger::LedgerError> {
+        Ledger::open_read_only(&self.ledger_path, self.zone.clone())
+    }
+}
+
 /// A reload in progress: verification on a worker thread, then activation between showings.
 #[derive(Default)]
 struct Reload {
@@ -292,18 +310,12 @@ impl App {
             return;
         }
         self.reload.in_flight = true;
-        let now = self.now();
-        let path = self.config.bundle_path();
-        let trust = self.config.trust_dir.clone();
-        let ledger_path = self.config.state_dir.join(LEDGER_FILE);
-        let zone = self.config.local_zone().clone();
-        let opts = self.load_options();
+        let job = self.load_job();
         let tx = self.prepared_tx.clone();
         let worker = move || {
-            // Its own read-only connection: the loop's connection stays the loop's.
-            let result = Ledger::open_read_only(&ledger_path, zone)
-                .map_err(LoadError::Ledger)
-                .and_then(|ledger| loader::prepare(&path, &trust, &ledger, now.unix_ms, &opts));
+            let result = job.ledger().map_err(LoadError::Ledger).and_then(|ledger| {
+                loader::prepare(&job.bundle, &job.trust, &ledger, job.now_unix_ms, &job.opts)
+            });
             let _ = tx.blocking_send(result);
         };
         if let Err(e) = std::thread::Builder::new().name("restage-verify".into()).spawn(worker) {
@@ -313,9 +325,21 @@ impl App {
         }
     }
 
-    /// Takes a bundle that stood unchanged in the inbox since the last scan and installs it on
-    /// a worker thread (verified, copied, the copy verified, renamed over the active bundle);
-    /// `inbox_done` hears the outcome. One at a time.
+    /// What a worker thread needs to verify a bundle against the ledger, off the loop.
+    fn load_job(&self) -> LoadJob {
+        LoadJob {
+            now_unix_ms: self.now().unix_ms,
+            bundle: self.config.bundle_path(),
+            trust: self.config.trust_dir.clone(),
+            ledger_path: self.config.state_dir.join(LEDGER_FILE),
+            zone: self.config.local_zone().clone(),
+            opts: self.load_options(),
+        }
+    }
+
+    /// Takes a bundle that has stood unchanged in the inbox for `inbox::SETTLE_MS` and
+    /// installs it on a worker thread (verified, copied, the copy verified, renamed over the
+    /// active bundle); `inbox_done` hears the outcome. One at a time.
     fn scan_inbox(&mut self) {
         if self.inbox_busy.is_some() {
             return;
@@ -323,20 +347,14 @@ impl App {
         let now = self.now();
         let Some(file) = self.inbox.as_mut().and_then(|i| i.next_ready(now.mono_ms)) else { return };
         tracing::info!(file = %file.display(), "bundle inbox: installing");
-        let target = self.config.bundle_path();
-        let trust = self.config.trust_dir.clone();
-        let ledger_path = self.config.state_dir.join(LEDGER_FILE);
-        let zone = self.config.local_zone().clone();
-        let opts = self.load_options();
+        let job = self.load_job();
         let tx = self.inbox_tx.clone();
         let src = file.clone();
         let worker = move || {
-            let result = Ledger::open_read_only(&ledger_path, zone)
-                .map_err(|e| format!("ledger: {e}"))
-                .and_then(|ledger| {
-                    install::install_verified(&src, &target, &trust, &ledger, now.unix_ms, &opts)
-                        .map_err(|e| e.to_string())
-                });
+            let result = job.ledger().map_err(|e| format!("ledger: {e}")).and_then(|ledger| {
+                install::install_verified(&src, &job.bundle, &job.trust, &ledger, job.now_unix_ms, &job.opts)
+                    .map_err(|e| e.to_string())
+            });
             let _ = tx.blocking_send(result);
         };
         match std::thread::Builder::new().name("restage-inbox".into()).spawn(worker) {
