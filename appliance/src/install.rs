@@ -73,8 +73,8 @@ pub fn install_verified(
 }
 
 /// Bytes copied between flushes. Every change of light waits for its ledger reservation to
-/// reach the disk, and an fsync waits behind what the filesystem holds dirty: a bundle copied
-/// in one piece (600 MB) held a showing's light 250-630 ms past its timer.
+/// reach the disk, and an fsync waits behind what the filesystem holds dirty: a 600 MB bundle
+/// copied in one piece held a 400 ms showing for 448-753 ms (in these pieces 400-407 ms).
 pub const FLUSH_BYTES: u64 = 8 << 20;
 
 /// Copies `src` beside `target` (a hidden `.install-PID.tmp`), flushing every

@@ -330,6 +330,7 @@ fn the_inbox_refuses_a_tampered_bundle_and_installs_a_whole_one() {
     assert!(inbox.join("refused/tampered.bundle").exists() && !inbox.join("tampered.bundle").exists());
     let v = wait_status(&sock, Duration::from_secs(5), |_| true);
     assert_eq!(v["bundle"]["version"], 3, "the old bundle plays on: {v}");
+    assert_eq!(v["inbox"]["dir"], inbox.to_str().unwrap(), "status names the inbox: {v}");
 
     // A slow copy, five pieces two seconds apart: the inbox scans (every 5 s) see it
     // incomplete at least once, and must not take it while it grows.
