@@ -1,7 +1,8 @@
 //! Compensation speed: 3 frames of 1400x1050 from a 1600x1200 target (the brief's target:
 //! under 0.5 s on the CPU path on the 2-core authoring machine), and the once-per-stage
 //! preparation (geometry, inverse responses, light certificate) measured separately; the
-//! per-pixel part alone on the CPU and, where an adapter exists, on the GPU.
+//! per-pixel part alone on the CPU and, where an adapter exists, on the GPU; and the whole
+//! with the footprint-aware refinement on a stage with measured footprints.
 
 use criterion::{Criterion, criterion_group, criterion_main};
 use restage_authoring::compensate::synthetic::{SyntheticSpec, build};
@@ -74,6 +75,16 @@ fn bench(c: &mut Criterion) {
     g.bench_function("prepare stage (geometry, certificate)", |b| {
         b.iter(|| Prepared::new(&s.model, params.reduction).unwrap())
     });
+    // The same stage with measured footprints (blur of radius 1.5 projector pixels): the
+    // formula's frames refined in `footprint_rounds` rounds (the default, 8).
+    let mut with_footprints = s.model.clone();
+    with_footprints.transport =
+        build(&SyntheticSpec { with_transport: true, ..spec.clone() }).model.transport;
+    let prep = Prepared::new(&with_footprints, params.reduction).unwrap();
+    g.bench_function(
+        format!("3 x 1400x1050 frames from 1600x1200, {} footprint rounds", params.footprint_rounds),
+        |b| b.iter(|| compensate_prepared(&with_footprints, &prep, &target, &params).unwrap()),
+    );
     g.finish();
 }
 

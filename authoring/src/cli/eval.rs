@@ -85,6 +85,10 @@ pub enum EvalStep {
         m: restage_authoring::compensate::Exponent,
         #[arg(long, default_value_t = 0.05)]
         margin: f64,
+        /// Rounds of footprint-aware refinement reported beside the formula (0: the formula
+        /// alone).
+        #[arg(long, default_value_t = restage_authoring::compensate::footprint::DEFAULT_ROUNDS)]
+        footprint_rounds: u32,
         /// Instead of the built-in scenes: a simulated capture, compensated with its true
         /// model and with `--stage` (what `calibrate` made of it), side by side.
         #[arg(long, requires = "stage")]
@@ -137,8 +141,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
             let est = StageModel::load(stage)?;
             eval::transport::evaluate(&est, &truth)
         }
-        EvalStep::Compensate { seed, ebound_lux, m, margin, rig, capture, stage } => {
-            let params = restage_authoring::compensate::Params::new(*ebound_lux, *m, *margin)?;
+        EvalStep::Compensate { seed, ebound_lux, m, margin, footprint_rounds, rig, capture, stage } => {
+            let params = restage_authoring::compensate::Params {
+                footprint_rounds: *footprint_rounds,
+                ..restage_authoring::compensate::Params::new(*ebound_lux, *m, *margin)?
+            };
+            params.validate()?;
             match (capture, stage) {
                 (Some(capture), Some(stage)) => {
                     let model = StageModel::load(stage)?;

@@ -15,6 +15,7 @@
 //! the inverse responses to 8-bit values.
 
 pub mod certificate;
+pub mod footprint;
 pub mod geometry;
 pub mod gpu;
 pub mod guarantee;
@@ -67,6 +68,8 @@ pub enum CompensateError {
     BadClipFraction(f64),
     #[error("certificate reduction {0} is invalid (expected 1..=16 camera pixels per point)")]
     BadReduction(u32),
+    #[error("{0} footprint rounds is invalid (expected 0..={MAX_FOOTPRINT_ROUNDS}; 0 is the formula alone)")]
+    BadFootprintRounds(u32),
     #[error(
         "the projectors' black level (plus {room_lux:.2} lux of room light) alone gives \
          {black_lux:.2} lux at camera pixel ({x}, {y}), above the usable bound {limit:.2} lux \
@@ -114,7 +117,13 @@ pub struct Params {
     pub clip_fraction: f64,
     /// Camera pixels per light-certificate point along each axis (1 = every object point).
     pub reduction: u32,
+    /// Rounds of footprint-aware refinement on the measured transport ([`footprint`]); 0 is
+    /// the paper's per-pixel formula alone. Ignored when the model has no transport.
+    pub footprint_rounds: u32,
 }
+
+/// The most rounds of footprint-aware refinement accepted (each costs about what the draft does).
+pub const MAX_FOOTPRINT_ROUNDS: u32 = 64;
 
 /// The lux meter's accuracy assumed unless told: a class-B illuminance meter. DIN 5032-7
 /// (1985 edition) sets the total error limits ("Gesamtfehler") of its classes L, A, B and C at
@@ -141,6 +150,7 @@ impl Params {
             meter_accuracy: DEFAULT_METER_ACCURACY,
             clip_fraction: 0.01,
             reduction: 2,
+            footprint_rounds: footprint::DEFAULT_ROUNDS,
         };
         p.validate()?;
         Ok(p)
@@ -182,6 +192,9 @@ impl Params {
         }
         if !(1..=16).contains(&self.reduction) {
             return Err(CompensateError::BadReduction(self.reduction));
+        }
+        if self.footprint_rounds > MAX_FOOTPRINT_ROUNDS {
+            return Err(CompensateError::BadFootprintRounds(self.footprint_rounds));
         }
         if let Exponent::Finite(m) = self.m
             && !(m.is_finite() && m >= 0.0)
@@ -232,6 +245,10 @@ pub struct Stats {
     /// Certificate points standing for unknown surface beside the known landing.
     #[serde(default)]
     pub unseen_points: usize,
+    /// The footprint-aware refinement, if it ran (the model has measured footprints and
+    /// rounds were asked for).
+    #[serde(default)]
+    pub refinement: Option<footprint::Refinement>,
 }
 
 /// The result: frames and what is needed to report on them.
@@ -385,10 +402,11 @@ pub fn compensate_on(
         });
     }
     let t0 = std::time::Instant::now();
-    let draft = match crate::gpu::select(device)? {
+    let mut draft = match crate::gpu::select(device)? {
         Some(g) => gpu::draft(g, stage, prep, target, params)?,
         None => draft_cpu(stage, prep, target, params)?,
     };
+    let refinement = footprint::refine(stage, prep, target, params, &mut draft);
     let Draft { weights, mut frames, scale, covered, by_bound, by_sat } = draft;
     // Light that would land where the model cannot bound it stays dark.
     let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut frames);
@@ -454,6 +472,7 @@ pub fn compensate_on(
             unvouched_pixels: unvouched,
             unseen_dark_pixels: unseen_dark,
             unseen_points: cert.points() - cert.first_unseen,
+            refinement,
         },
     })
 }
@@ -515,6 +534,66 @@ pub fn global_scale(caps: &[(f64, f64)], clip_fraction: f64) -> (f64, usize, usi
     (scale, by_bound, by_sat)
 }
 
+/// Per point, the light available under the bound (lux per channel, above the floor of its
+/// certificate point), divided by how much the certificate will over-count this point's
+/// light (its coefficient over this pixel's own efficiency, per projector, weighted): the
+/// frames then mostly pass the check as made, and enforcement only mops up.
+fn headroom(prep: &Prepared, weights: &[f32], limit: f64, i: usize) -> [f64; 3] {
+    let (geom, cert) = (&prep.geometry, &prep.certificate);
+    let kn = geom.projectors;
+    let pt = cert.point_of_pixel[i] as usize;
+    let mut rho = 0.0f64;
+    for k in 0..kn {
+        let (w, eta) = (weights[i * kn + k] as f64, geom.eta[i * kn + k] as f64);
+        if w > 0.0 && eta > 0.0 {
+            rho += w * cert.projectors[k].2[pt].lux_per_unit as f64 / eta;
+        }
+    }
+    let rho = rho.max(1.0);
+    std::array::from_fn(|c| (limit - cert.ambient_lux - prep.floor[pt][c]).max(0.0) / rho)
+}
+
+/// Per work point (`idx`), the irradiance it needs above black at global scale `scale` (lux
+/// per channel), dimmed locally where the bound or a projector's output cannot give it.
+pub fn demands(
+    stage: &StageModel,
+    prep: &Prepared,
+    target: &LinearImage,
+    weights: &[f32],
+    scale: f64,
+    limit: f64,
+    idx: &[u32],
+) -> Vec<[f64; 3]> {
+    let geom = &prep.geometry;
+    let kn = geom.projectors;
+    idx.par_iter()
+        .map(|&i| {
+            let i = i as usize;
+            let (g, a, t, b) =
+                (stage.gain[i], stage.ambient[i], target.data[i], headroom(prep, weights, limit, i));
+            let mut d: [f64; 3] = std::array::from_fn(|c| {
+                ((scale * t[c].max(0.0) as f64 - a[c] as f64) / g[c] as f64).max(0.0)
+            });
+            let mut f = 1.0f64;
+            for c in 0..3 {
+                if d[c] > 0.0 {
+                    f = f.min(b[c] / d[c]);
+                    for k in 0..kn {
+                        let w = weights[i * kn + k] as f64;
+                        if w > 0.0 {
+                            f = f.min(geom.eta[i * kn + k] as f64 / (w * d[c]));
+                        }
+                    }
+                }
+            }
+            if f < 1.0 {
+                d = d.map(|v| v * f.max(0.0));
+            }
+            d
+        })
+        .collect()
+}
+
 /// The CPU reference for the per-pixel work: weights, scale, demand, splat, quantisation.
 pub fn draft_cpu(
     stage: &StageModel,
@@ -525,8 +604,6 @@ pub fn draft_cpu(
     let geom = &prep.geometry;
     let (n, kn) = (geom.points, geom.projectors);
     let limit = params.limit();
-    let cert = &prep.certificate;
-    let room = cert.ambient_lux;
     let t0 = std::time::Instant::now();
     let mut weights = vec![0.0f32; n * kn];
     weights
@@ -540,22 +617,7 @@ pub fn draft_cpu(
         return Err(CompensateError::NoCoverage);
     }
     let covered = idx.len();
-    // Per point, the light available under the bound (lux per channel, above the floor of its
-    // certificate point), divided by how much the certificate will over-count this point's
-    // light (its coefficient over this pixel's own efficiency, per projector, weighted): the
-    // frames then mostly pass the check as made, and enforcement only mops up.
-    let headroom = |i: usize| -> [f64; 3] {
-        let pt = cert.point_of_pixel[i] as usize;
-        let mut rho = 0.0f64;
-        for k in 0..kn {
-            let (w, eta) = (weights[i * kn + k] as f64, geom.eta[i * kn + k] as f64);
-            if w > 0.0 && eta > 0.0 {
-                rho += w * cert.projectors[k].2[pt].lux_per_unit as f64 / eta;
-            }
-        }
-        let rho = rho.max(1.0);
-        std::array::from_fn(|c| (limit - room - prep.floor[pt][c]).max(0.0) / rho)
-    };
+    let headroom = |i: usize| headroom(prep, &weights, limit, i);
 
     // Per point, the largest scale it can take under the bound and under saturation.
     let caps: Vec<(f64, f64)> = idx
@@ -585,33 +647,7 @@ pub fn draft_cpu(
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: caps done");
     let (scale, by_bound, by_sat) = global_scale(&caps, params.clip_fraction);
 
-    // Per point demand (lux above black, per channel), clipped locally where needed.
-    let demand: Vec<[f64; 3]> = idx
-        .par_iter()
-        .map(|&i| {
-            let i = i as usize;
-            let (g, a, t, b) = (stage.gain[i], stage.ambient[i], target.data[i], headroom(i));
-            let mut d: [f64; 3] = std::array::from_fn(|c| {
-                ((scale * t[c].max(0.0) as f64 - a[c] as f64) / g[c] as f64).max(0.0)
-            });
-            let mut f = 1.0f64;
-            for c in 0..3 {
-                if d[c] > 0.0 {
-                    f = f.min(b[c] / d[c]);
-                    for k in 0..kn {
-                        let w = weights[i * kn + k] as f64;
-                        if w > 0.0 {
-                            f = f.min(geom.eta[i * kn + k] as f64 / (w * d[c]));
-                        }
-                    }
-                }
-            }
-            if f < 1.0 {
-                d = d.map(|v| v * f.max(0.0));
-            }
-            d
-        })
-        .collect();
+    let demand = demands(stage, prep, target, &weights, scale, limit, &idx);
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: demand done");
 
     // Splat each point's relative output onto the projector pixels around it (averaging).

@@ -256,6 +256,7 @@ impl SyntheticStage {
                 continue;
             }
             let (px, py) = (c[0].round() as i64, c[1].round() as i64);
+            let first = entries.len();
             for y in py - reach..=py + reach {
                 for x in px - reach..=px + reach {
                     if x < 0 || y < 0 || x >= pw as i64 || y >= ph as i64 {
@@ -267,6 +268,10 @@ impl SyntheticStage {
                     }
                 }
             }
+            // Shares of this camera pixel's light, as the transport step measures them (and
+            // as `true_lux` mixes the pixels): they sum to 1.
+            let sum: f32 = entries[first..].iter().map(|e| e.2).sum();
+            entries[first..].iter_mut().for_each(|e| e.2 /= sum);
         }
         entries.sort_by_key(|e| (e.0, e.1));
         let mut row_start = vec![0u32; pw * ph + 1];

@@ -75,6 +75,102 @@ fn where_light_allows_the_visitor_sees_the_target() {
     assert!(median < 0.03, "median relative error {median}");
 }
 
+/// Mean relative error of the visitor's view against the scaled target over the points lit
+/// and worked on, all channels.
+fn view_error(s: &SyntheticStage, c: &Compensation, t: &LinearImage) -> f64 {
+    let view = s.view(&c.frames);
+    let (mut sum, mut count) = (0.0f64, 0usize);
+    for i in 0..view.len() {
+        if c.lux[i] <= 0.0 || !view[i][0].is_finite() || !t.data[i][0].is_finite() {
+            continue;
+        }
+        for ch in 0..3 {
+            let want = c.stats.scale * t.data[i][ch] as f64;
+            sum += (view[i][ch] as f64 - want).abs() / want;
+            count += 1;
+        }
+    }
+    assert!(count > 1000, "{count} values");
+    sum / count as f64
+}
+
+#[test]
+fn footprint_refinement_undoes_the_blur_the_formula_leaves() {
+    // A blurred stage (tent of radius 2 projector pixels, measured as transport) and a target
+    // with sharp dark and bright squares, as chips in paint are.
+    let spec = SyntheticSpec {
+        lux_error: 0.0,
+        camera: (64, 48),
+        projector: (64, 48),
+        blur: 2.0,
+        painted: false,
+        ..SyntheticSpec::small(2, 6)
+    };
+    let s = build(&spec);
+    let mut t = target(&s, 1);
+    for (i, v) in t.data.iter_mut().enumerate() {
+        let (x, y) = (i % 64, i / 64);
+        if (x / 4 + y / 4) % 2 == 0 {
+            *v = v.map(|c| c * 0.4);
+        }
+    }
+    let formula = Params { footprint_rounds: 0, ..Params::new(5000.0, Exponent::Finite(8.0), 0.05).unwrap() };
+    let refined = Params { footprint_rounds: 12, ..formula.clone() };
+    let a = compensate(&s.model, &t, &formula).unwrap();
+    let b = compensate(&s.model, &t, &refined).unwrap();
+    assert!(a.stats.refinement.is_none());
+    let r = b.stats.refinement.expect("the model has footprints");
+    assert!(r.mismatch_after < 0.8 * r.mismatch_before, "{r:?}");
+    let (ea, eb) = (view_error(&s, &a, &t), view_error(&s, &b, &t));
+    assert!(eb < 0.8 * ea, "visitor's error: formula {ea:.4}, refined {eb:.4}");
+    // The same light level: refinement moves light, it does not brighten the object.
+    assert_eq!(a.stats.scale, b.stats.scale);
+    assert!(b.stats.peak_lux <= refined.limit());
+    // Without measured footprints the formula's frames stand.
+    let mut bare = s.model.clone();
+    bare.transport.iter_mut().for_each(|t| *t = Default::default());
+    let c = compensate(&bare, &t, &refined).unwrap();
+    assert!(c.stats.refinement.is_none());
+}
+
+/// Where the bound binds, sharper frames have brighter peaks for the certificate to charge:
+/// the refinement holds every pixel under its cap, so the guarantee has no more to dim than
+/// it had for the formula's frames, and the visitor still sees the target more closely.
+#[test]
+fn footprint_refinement_leaves_the_guarantee_nothing_more_to_dim() {
+    let spec = SyntheticSpec {
+        camera: (64, 48),
+        projector: (64, 48),
+        blur: 2.0,
+        painted: false,
+        ..SyntheticSpec::small(3, 8)
+    };
+    let s = build(&spec);
+    let mut t = target(&s, 2);
+    for (i, v) in t.data.iter_mut().enumerate() {
+        if (i % 64 / 3 + i / 64 / 3) % 2 == 0 {
+            *v = v.map(|c| c * 0.5);
+        }
+    }
+    let prep = Prepared::new(&s.model, 2).unwrap();
+    let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
+    let formula =
+        Params { footprint_rounds: 0, ..Params::new(3.0 * black, Exponent::Finite(8.0), 0.05).unwrap() };
+    let refined = Params { footprint_rounds: 12, ..formula.clone() };
+    let a = compensate(&s.model, &t, &formula).unwrap();
+    let b = compensate(&s.model, &t, &refined).unwrap();
+    assert!(a.stats.limited_by_bound > 0, "the bound binds: {:?}", a.stats);
+    assert!(
+        b.stats.dimmed_pixels <= a.stats.dimmed_pixels,
+        "dimmed after refinement {} > formula {}",
+        b.stats.dimmed_pixels,
+        a.stats.dimmed_pixels
+    );
+    assert!(b.stats.peak_lux <= refined.limit());
+    let (ea, eb) = (view_error(&s, &a, &t), view_error(&s, &b, &t));
+    assert!(eb < ea, "visitor's error: formula {ea:.4}, refined {eb:.4}");
+}
+
 #[test]
 fn projector_pixels_lighting_no_object_point_stay_black() {
     let s = synthetic_stage(2, 3);
@@ -209,6 +305,7 @@ proptest! {
         tseed in 0u64..100,
         noise in 0.0f32..0.5,
         reduction in 1u32..=3,
+        footprint_rounds in prop_oneof![Just(0u32), 1u32..=12],
     ) {
         let s = synthetic_stage(projectors, seed);
         let mut t = target(&s, tseed);
@@ -220,7 +317,7 @@ proptest! {
         let prep = Prepared::new(&s.model, 2).unwrap();
         let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
         let e_bound = black * bound_factor / ((1.0 - margin) * (1.0 - meter));
-        let p = Params { e_bound_lux: e_bound, m, margin, meter_accuracy: meter, clip_fraction: clip, reduction };
+        let p = Params { e_bound_lux: e_bound, m, margin, meter_accuracy: meter, clip_fraction: clip, reduction, footprint_rounds };
         let c = compensate(&s.model, &t, &p).unwrap();
         prop_assert!(c.stats.peak_lux <= p.limit());
         // The bundle's light model allows exactly the limit compensation held to.

@@ -70,7 +70,8 @@ pub fn pristine_target(stage: &VirtualStage) -> LinearImage {
 /// Every built-in scene at an evaluation size (camera 480x360, projectors 560x420), and the
 /// vase again standing on the grey plinth: the object's pristine paint as the target (0 on
 /// the plinth, which is not to be lit), compensated with the TRUE stage model (geometry,
-/// responses; it knows nothing of interreflection), judged with the true physics.
+/// responses; it knows nothing of interreflection) by the formula, and again refined on the
+/// stage's true footprints ([`VirtualStage::true_transport`]), judged with the true physics.
 pub fn evaluate_builtin(
     seed: u64,
     rig: RigVariation,
@@ -93,6 +94,14 @@ pub fn evaluate_builtin(
         let target = pristine_target(&stage);
         let label = if plinth { format!("{} on a plinth", scene.name()) } else { scene.name().to_string() };
         rows.extend(evaluate(&label, &stage, &model, &target, params)?);
+        // Side by side: the same true model with the footprints a perfect transport
+        // measurement would give, refined on them.
+        if params.footprint_rounds > 0 {
+            let with_footprints = StageModel { transport: stage.true_transport(), ..model };
+            let prep = Prepared::new(&with_footprints, params.reduction)?;
+            let label = format!("{label}, {} footprint rounds", params.footprint_rounds);
+            rows.extend(visitor_view(&label, &stage, &with_footprints, &prep, &target, params)?);
+        }
     }
     Ok(rows)
 }
@@ -346,6 +355,12 @@ pub fn visitor_view(
             ),
         ]);
     }
+    if let Some(r) = comp.stats.refinement {
+        rows.extend([
+            Metric::info(STEP, &name("modelled mismatch, formula's frames"), 100.0 * r.mismatch_before, "%"),
+            Metric::info(STEP, &name("modelled mismatch, refined frames"), 100.0 * r.mismatch_after, "%"),
+        ]);
+    }
     let camera_peak = true_peak(truth, &comp.frames);
     let surface_peak = truth.surface_peak_lux(&comp.frames);
     rows.push(Metric::info(STEP, &name("E_bound"), params.e_bound_lux, "lx"));
@@ -374,9 +389,10 @@ pub fn visitor_view(
     Ok(rows)
 }
 
-/// A simulated capture's stage compensated twice for its pristine paint, with its true model
-/// and with `calibrated` (what `calibrate` made of the capture), both judged with the capture's
-/// true physics: the rows of [`visitor_view`], labelled "true model" and "calibrated".
+/// A simulated capture's stage compensated for its pristine paint with its true model and
+/// with `calibrated` (what `calibrate` made of the capture), all judged with the capture's
+/// true physics: the rows of [`visitor_view`], labelled "true model", "calibrated, formula"
+/// and, where the model has measured footprints, "calibrated, N footprint rounds".
 pub fn evaluate_capture(
     capture: &Path,
     calibrated: &StageModel,
@@ -409,9 +425,16 @@ pub fn evaluate_capture(
     }
     let target = pristine_target(&stage);
     let mut rows = Vec::new();
-    for (label, model) in [("true model", &truth), ("calibrated", calibrated)] {
-        let prep = Prepared::new(model, params.reduction)?;
-        rows.extend(visitor_view(label, &stage, model, &prep, &target, params)?);
+    let prep = Prepared::new(&truth, params.reduction)?;
+    rows.extend(visitor_view("true model", &stage, &truth, &prep, &target, params)?);
+    // The calibrated model with the paper's formula alone and, side by side, refined on the
+    // footprints its transport step measured.
+    let prep = Prepared::new(calibrated, params.reduction)?;
+    let formula = Params { footprint_rounds: 0, ..params.clone() };
+    rows.extend(visitor_view("calibrated, formula", &stage, calibrated, &prep, &target, &formula)?);
+    if params.footprint_rounds > 0 && compensate::footprint::has_footprints(calibrated) {
+        let label = format!("calibrated, {} footprint rounds", params.footprint_rounds);
+        rows.extend(visitor_view(&label, &stage, calibrated, &prep, &target, params)?);
     }
     Ok(rows)
 }
@@ -545,7 +568,7 @@ mod tests {
         };
         let object_px = get("true model", "object pixels");
         let (lit_true, lit_cal) =
-            (get("true model", "object pixels lit"), get("calibrated", "object pixels lit"));
+            (get("true model", "object pixels lit"), get("calibrated, formula", "object pixels lit"));
         assert!(lit_true > 97.0, "{}", crate::eval::table(&rows));
         let lost = (lit_true - lit_cal) / 100.0 * object_px;
         assert!(
@@ -554,7 +577,11 @@ mod tests {
             crate::eval::table(&rows)
         );
         let whole = "CIEDE2000 mean over the whole object, unlit pixels included";
-        assert!(get("calibrated", whole) > get("true model", whole) + 1.0, "{}", crate::eval::table(&rows));
+        assert!(
+            get("calibrated, formula", whole) > get("true model", whole) + 1.0,
+            "{}",
+            crate::eval::table(&rows)
+        );
         // A model of another capture is refused, naming it: another size, or the same size
         // on another seed's rig (another lens).
         for other in

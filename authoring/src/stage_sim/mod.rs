@@ -1133,6 +1133,91 @@ impl VirtualStage {
         }
     }
 
+    /// The light transport a perfect dot measurement would find, per projector: for every
+    /// camera pixel that projector lights, each projector pixel's share of its light — the
+    /// lens's Gaussian blur followed by the camera pixel's box over its footprint, as
+    /// [`Self::render`] gathers light (at the pixel's centre sample; the sub-samples of pixels
+    /// on an edge are not followed). Shares below 1e-4 are dropped, the rest sum to 1.
+    pub fn true_transport(&self) -> Vec<Transport> {
+        (0..self.projector_count()).map(|k| self.true_footprints(k)).collect()
+    }
+
+    fn true_footprints(&self, k: usize) -> Transport {
+        let p = &self.setup.projectors[k];
+        let (w, h) = (p.width as usize, p.height as usize);
+        let sigma = p.blur_px;
+        // The blur's kernel as `optics::gaussian_blur` applies it.
+        let (r, kernel): (i64, Vec<f64>) = if sigma <= 0.05 {
+            (0, vec![1.0])
+        } else {
+            let r = (3.0 * sigma).ceil() as i64;
+            let k: Vec<f64> = (-r..=r).map(|i| (-(i as f64).powi(2) / (2.0 * sigma * sigma)).exp()).collect();
+            let sum: f64 = k.iter().sum();
+            (r, k.iter().map(|v| v / sum).collect())
+        };
+        // Along one axis: per source pixel, its share of the box [c - half, c + half] after
+        // the blur (cells are pixel-sized, centred on integers, as the integrator reads them).
+        let axis = |c: f64, half: f64, n: usize| -> Vec<(usize, f64)> {
+            let (lo, hi) = (c - half.max(1e-3), c + half.max(1e-3));
+            let mut out: Vec<(usize, f64)> = Vec::new();
+            for cell in (lo + 0.5).floor() as i64..=(hi + 0.5).floor() as i64 {
+                let overlap = (hi.min(cell as f64 + 0.5) - lo.max(cell as f64 - 0.5)).max(0.0) / (hi - lo);
+                if overlap <= 0.0 || cell < 0 || cell >= n as i64 {
+                    continue;
+                }
+                for (j, kv) in kernel.iter().enumerate() {
+                    let src = cell + r - j as i64;
+                    if src < 0 || src >= n as i64 {
+                        continue;
+                    }
+                    match out.iter_mut().find(|e| e.0 == src as usize) {
+                        Some(e) => e.1 += overlap * kv,
+                        None => out.push((src as usize, overlap * kv)),
+                    }
+                }
+            }
+            out
+        };
+        let per_pixel: Vec<Vec<(u32, f32)>> = self.samples[k]
+            .par_iter()
+            .map(|s| {
+                if s.g <= 0.0 {
+                    return Vec::new();
+                }
+                let (xs, ys) = (axis(s.u as f64, s.hx as f64, w), axis(s.v as f64, s.hy as f64, h));
+                let mut e: Vec<(u32, f32)> = Vec::new();
+                for &(y, wy) in &ys {
+                    for &(x, wx) in &xs {
+                        e.push(((y * w + x) as u32, (wx * wy) as f32));
+                    }
+                }
+                let sum: f32 = e.iter().map(|v| v.1).sum();
+                e.retain(|v| v.1 >= 1e-4 * sum);
+                let sum: f32 = e.iter().map(|v| v.1).sum();
+                e.iter_mut().for_each(|v| v.1 /= sum);
+                e
+            })
+            .collect();
+        let mut row_start = vec![0u32; w * h + 1];
+        for e in per_pixel.iter().flatten() {
+            row_start[e.0 as usize + 1] += 1;
+        }
+        for q in 0..w * h {
+            row_start[q + 1] += row_start[q];
+        }
+        let total = row_start[w * h] as usize;
+        let (mut camera_pixel, mut weight) = (vec![0u32; total], vec![0f32; total]);
+        let mut next = row_start.clone();
+        for (i, entries) in per_pixel.iter().enumerate() {
+            for &(q, wt) in entries {
+                let at = next[q as usize] as usize;
+                (camera_pixel[at], weight[at]) = (i as u32, wt);
+                next[q as usize] += 1;
+            }
+        }
+        Transport { row_start, camera_pixel, weight }
+    }
+
     /// Writes the ground-truth folder (`dir/ground-truth/`): see ARCHITECTURE.md.
     pub fn write_ground_truth(&self, dir: &Path) -> Result<(), StageSimError> {
         truth::write(self, &dir.join(GROUND_TRUTH_DIR))

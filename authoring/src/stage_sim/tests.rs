@@ -485,3 +485,55 @@ fn configs_without_a_rig_field_keep_the_nominal_rig() {
     assert_eq!(seeded.rig, RigVariation::Seeded);
     assert_ne!(Setup::from_config(&seeded).unwrap().projector_specs, old.projector_specs);
 }
+
+/// The true transport predicts what the stage renders: a noisy frame on one projector at a
+/// time, its light above black at every fully covered object pixel, against
+/// `eta * sum_q share_q * output_q` from the transport — and far better than reading the one
+/// pixel the correspondence names, which ignores the blur and the camera pixel's footprint.
+#[test]
+fn the_true_transport_predicts_the_rendered_light() {
+    use rand::{Rng, SeedableRng};
+    let stage = VirtualStage::new(&SceneConfig::tiny(SceneName::Vase, 3)).unwrap();
+    let truth = stage.truth();
+    let transport = stage.true_transport();
+    let geom = crate::compensate::Geometry::new(&truth);
+    let kn = stage.projector_count();
+    let black = stage.irradiance(&stage.black_frames()).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+    for k in 0..kn {
+        let p = &truth.projectors[k];
+        let t = &transport[k];
+        assert_eq!(t.row_start.len(), (p.width * p.height) as usize + 1);
+        let mut frames = stage.black_frames();
+        frames[k] = RgbImage::from_fn(p.width, p.height, |_, _| Rgb([rng.gen_range(0..=255u8); 3]));
+        let lit = stage.irradiance(&frames).unwrap();
+        let out: Vec<f64> = frames[k].pixels().map(|v| p.response[0][v.0[0] as usize] as f64).collect();
+        let mut predicted = vec![0.0f64; truth.pixel_count()];
+        let mut shares = vec![0.0f64; truth.pixel_count()];
+        for (q, o) in out.iter().enumerate() {
+            for e in t.row_start[q] as usize..t.row_start[q + 1] as usize {
+                let i = t.camera_pixel[e] as usize;
+                predicted[i] += t.weight[e] as f64 * o;
+                shares[i] += t.weight[e] as f64;
+            }
+        }
+        let (mut err_t, mut err_nearest, mut n) = (0.0f64, 0.0f64, 0usize);
+        for (i, px) in stage.pixels().iter().enumerate() {
+            let eta = geom.eta[i * kn + k] as f64;
+            if !(px.is_object() && px.coverage >= 1.0 && eta > 0.0) {
+                continue;
+            }
+            assert!((shares[i] - 1.0).abs() < 1e-3, "pixel {i}: shares sum to {}", shares[i]);
+            let measured = (lit[i][0] - black[i][0]) as f64;
+            let c = geom.coord[i * kn + k];
+            let q = c[1].round() as usize * p.width as usize + c[0].round() as usize;
+            err_t += (eta * predicted[i] - measured).abs() / measured.max(1e-3);
+            err_nearest += (eta * out[q] - measured).abs() / measured.max(1e-3);
+            n += 1;
+        }
+        assert!(n > 2000, "projector {k}: {n} pixels");
+        let (err_t, err_nearest) = (err_t / n as f64, err_nearest / n as f64);
+        assert!(err_t < 0.02, "projector {k}: transport's mean relative error {err_t:.4}");
+        assert!(err_t < 0.2 * err_nearest, "projector {k}: {err_t:.4} against nearest {err_nearest:.4}");
+    }
+}

@@ -40,6 +40,11 @@ pub struct Args {
     /// Camera pixels per light-certificate point along each axis.
     #[arg(long, default_value_t = 2)]
     pub reduction: u32,
+    /// Rounds of footprint-aware refinement: the frames are corrected so that the blurred,
+    /// overlapping light the transport step measured matches the target (0: the paper's
+    /// per-pixel formula alone). Used only when the stage model has measured footprints.
+    #[arg(long, default_value_t = compensate::footprint::DEFAULT_ROUNDS)]
+    pub footprint_rounds: u32,
     /// Where the per-pixel work runs (auto: a hardware GPU if there is one, else the CPU;
     /// gpu: any adapter, lavapipe included). The light guarantee always runs on the CPU.
     #[arg(long, value_enum, default_value_t = Device::Auto)]
@@ -130,6 +135,7 @@ pub fn params(args: &Args) -> Result<Params> {
         meter_accuracy: args.meter_accuracy,
         clip_fraction: args.clip_fraction,
         reduction: args.reduction,
+        footprint_rounds: args.footprint_rounds,
     };
     params.validate()?;
     Ok(params)

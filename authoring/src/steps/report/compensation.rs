@@ -119,7 +119,7 @@ impl Page<'_> {
              <tr><th scope=\"row\">limited by the bound</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">limited by projector saturation</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">clip fraction allowed</th><td class=\"n\">{}</td></tr>\
-             <tr><th scope=\"row\">guarantee rounds, pixels dimmed</th><td class=\"n\">{}, {}</td></tr>\
+             <tr><th scope=\"row\">guarantee rounds, pixels dimmed</th><td class=\"n\">{}, {}</td></tr>{}\
              </tbody></table></div>",
             file(&format!("{}/compensation.json", s.dir)),
             esc(&sm.m),
@@ -131,7 +131,15 @@ impl Page<'_> {
             pct(st.limited_by_saturation as f64 / covered),
             pct(sm.clip_fraction),
             st.rounds,
-            st.dimmed_pixels
+            st.dimmed_pixels,
+            // Only where it ran: a model without measured footprints keeps the formula's frames.
+            st.refinement.map_or(String::new(), |r| format!(
+                "<tr><th scope=\"row\">footprint refinement: rounds, modelled mismatch before → after</th>\
+                 <td class=\"n\">{}, {} → {}</td></tr>",
+                r.rounds,
+                pct(r.mismatch_before),
+                pct(r.mismatch_after)
+            ))
         );
         // The frames: one panel per projector, each in its own pixel coordinates.
         let parts: Vec<Part> = s
