@@ -3,13 +3,15 @@
 //! neighbour updates, stop when every e <= alpha; then the contours are rasterised back.
 
 use std::cmp::Reverse;
-use std::collections::BinaryHeap;
 
 use super::contour::{Patch, trace_patches};
 use super::raster::fill_even_odd;
 use super::{ClassInfo, MASKED, RestoreParams, RestoreStats};
 
 const NONE: u32 = u32::MAX;
+
+/// Candidates whose line of sight is tested, nearest first, before a point is left unpaired.
+const MAX_TESTS: usize = 12;
 
 /// Where the spacing agrees with d* within this many px both before and after a move, R is
 /// 1 (Eq. 5 with a dead band): distances between pixel contours carry half a pixel of
@@ -156,16 +158,9 @@ impl Arena {
     fn pair(&mut self, w: usize, h: usize, params: &RestoreParams) {
         let n = self.pos.len();
         let lw = w + 1;
-        let mut occ = vec![[NONE; 4]; lw * (h + 1)];
-        for i in 0..n {
-            let p = self.pos[i];
-            let slot = &mut occ[p[1] as usize * lw + p[0] as usize];
-            if let Some(s) = slot.iter_mut().find(|s| **s == NONE) {
-                *s = i as u32;
-            }
-        }
-        // Buckets of lattice points (8 x 8), searched ring by ring around each point.
-        const B: usize = 8;
+        let occ = self.occupancy(lw, h);
+        // Buckets of lattice points (4 x 4), searched ring by ring around each point.
+        const B: usize = 4;
         let (nbx, nby) = (lw.div_ceil(B), (h + 1).div_ceil(B));
         let mut start = vec![0u32; nbx * nby + 1];
         let bucket_of = |p: [f64; 2]| (p[1] as usize / B) * nbx + p[0] as usize / B;
@@ -189,17 +184,17 @@ impl Arena {
         let rings = (reach / B as f64).ceil() as isize + 1;
         let nb = params.neighbours as f64;
         let mut d = vec![f64::NAN; n];
-        // Candidates found so far, nearest first (ties: lower index), as a min-heap: a ring
-        // adds candidates and only those within the scanned bound are examined, so re-sorting
-        // the whole list per ring was most of the step's time.
-        let mut pending: BinaryHeap<Reverse<(u64, u32)>> = BinaryHeap::new();
+        // Candidates found so far and not yet examined, unordered: each examination takes
+        // the nearest (ties: lower index) by one scan. Most points examine one or two, so
+        // keeping the candidates ordered as they arrive (a heap, then a sorted list) was most
+        // of the step's time.
+        let mut pending: Vec<(u64, u32)> = Vec::new();
         #[allow(clippy::needless_range_loop)] // i names the point in several arrays
         for i in 0..n {
             let p = self.pos[i];
             let (px, py) = (p[0] as i32, p[1] as i32);
             let (bx, by) = ((px as usize / B) as isize, (py as usize / B) as isize);
             let ci = self.contour[i] as usize;
-            let info = &self.contours[ci];
             let mut tests = 0;
             pending.clear();
             'rings: for r in 0..=rings {
@@ -222,34 +217,39 @@ impl Arena {
                             if dd2 > reach2 {
                                 continue;
                             }
-                            if cj as usize == ci {
-                                // The same contour counts only far along it (the other side
-                                // of a stripe or a dot), not the point's own neighbourhood.
-                                let k = (j as usize - info.first).abs_diff(i - info.first);
-                                let sep = k.min(info.len - k) as f64;
-                                // The larger coordinate difference bounds the distance from
-                                // below: most of the point's own neighbourhood is dropped
-                                // without a square root.
-                                let near = 2.0 * nb + 2.0;
-                                if sep <= 1.5 * e[0].abs().max(e[1].abs()) + near
-                                    || sep <= 1.5 * dd2.sqrt() + near
-                                {
-                                    continue;
-                                }
+                            if cj as usize == ci && self.near_along(i, j as usize, e, dd2, nb) {
+                                continue;
                             }
                             // Non-negative, so their bits order like them.
-                            pending.push(Reverse((dd2.to_bits(), j)));
+                            pending.push((dd2.to_bits(), j));
                         }
                     }
                 }
-                // Every point not yet scanned is at least r * B away.
-                let bound = if r == rings { f64::INFINITY } else { (r as usize * B) as f64 };
-                while let Some(&Reverse((bits, j))) = pending.peek() {
+                // Every point not yet scanned lies beyond a side of the scanned square of
+                // buckets that still has buckets behind it; the nearest such side bounds
+                // their distance from below (and past `rings`, beyond reach). A point may sit
+                // on that bound, so only candidates strictly nearer are examined: an equally
+                // near one with a lower index may still be found.
+                let bound = if r == rings {
+                    f64::INFINITY
+                } else {
+                    let side = |lo: isize, hi: isize, at: f64, count: usize| {
+                        let low = if lo > 0 { at - (lo as usize * B) as f64 } else { f64::INFINITY };
+                        let high = if hi + 1 < count as isize {
+                            ((hi + 1) as usize * B) as f64 - at
+                        } else {
+                            f64::INFINITY
+                        };
+                        low.min(high)
+                    };
+                    side(bx - r, bx + r, p[0], nbx).min(side(by - r, by + r, p[1], nby))
+                };
+                while let Some((slot, &(bits, j))) = pending.iter().enumerate().min_by_key(|e| e.1) {
                     let dd2 = f64::from_bits(bits);
-                    if dd2 > bound * bound {
+                    if dd2 >= bound * bound {
                         break;
                     }
-                    pending.pop();
+                    pending.swap_remove(slot);
                     let q = self.pos[j as usize];
                     if visible(&occ, lw, (px, py), (q[0] as i32, q[1] as i32)) {
                         self.q[i] = j;
@@ -257,16 +257,49 @@ impl Arena {
                         break 'rings;
                     }
                     tests += 1;
-                    if tests >= 12 {
+                    if tests >= MAX_TESTS {
                         break 'rings;
                     }
                 }
+                if bound == f64::INFINITY {
+                    break;
+                }
             }
         }
-        // d*: Gaussian-weighted median of the paired distances along the contour, over the
-        // points paired with the same neighbouring contour. A weighted
-        // median rather than the paper's weighted mean, so that a chip or a bump (which pulls
-        // a few distances far off) does not leak into the spacing the others are held to.
+        self.smooth_spacing(&d, params);
+        self.index_pairs();
+    }
+
+    /// Which contour points sit on each lattice point (up to four), for lines of sight.
+    fn occupancy(&self, lw: usize, h: usize) -> Vec<[u32; 4]> {
+        let mut occ = vec![[NONE; 4]; lw * (h + 1)];
+        for (i, p) in self.pos.iter().enumerate() {
+            let slot = &mut occ[p[1] as usize * lw + p[0] as usize];
+            if let Some(s) = slot.iter_mut().find(|s| **s == NONE) {
+                *s = i as u32;
+            }
+        }
+        occ
+    }
+
+    /// Whether point `j`, on the same contour as point `i` and `e = pos[i] - pos[j]` away
+    /// (`dd2` its square length), lies in `i`'s own neighbourhood along the contour: the same
+    /// contour counts only far along it (the other side of a stripe or a dot).
+    fn near_along(&self, i: usize, j: usize, e: [f64; 2], dd2: f64, nb: f64) -> bool {
+        let info = &self.contours[self.contour[i] as usize];
+        let k = (j - info.first).abs_diff(i - info.first);
+        let sep = k.min(info.len - k) as f64;
+        // The larger coordinate difference bounds the distance from below: most of the
+        // point's own neighbourhood is dropped without a square root.
+        let near = 2.0 * nb + 2.0;
+        sep <= 1.5 * e[0].abs().max(e[1].abs()) + near || sep <= 1.5 * dd2.sqrt() + near
+    }
+
+    /// d*: Gaussian-weighted median of the paired distances `d` along each contour, over the
+    /// points paired with the same neighbouring contour. A weighted median rather than the
+    /// paper's weighted mean, so that a chip or a bump (which pulls a few distances far off)
+    /// does not leak into the spacing the others are held to.
+    fn smooth_spacing(&mut self, d: &[f64], params: &RestoreParams) {
         let win = params.spacing_window;
         let sigma = (win as f64 / 2.0).max(0.5);
         let weights: Vec<f64> =
@@ -275,9 +308,18 @@ impl Arena {
         // are kept sorted (distance, then position) and updated by one removal and one
         // insertion per step rather than sorted afresh at every point.
         let mut sorted: Vec<(f64, usize)> = Vec::new();
+        // The contour each point is paired with (NONE: unpaired), by position on the contour.
+        let mut partner: Vec<u32> = Vec::new();
         for c in &self.contours {
             let (len, first) = (c.len, c.first);
             let half = win.min((len - 1) / 2);
+            partner.clear();
+            partner.extend(
+                self.q[first..first + len]
+                    .iter()
+                    .map(|&q| if q == NONE { NONE } else { self.contour[q as usize] }),
+            );
+            let wrap = |j: usize| if j >= len { j - len } else { j };
             let key = |pos: usize| (d[first + pos], pos);
             let before = |a: (f64, usize), b: (f64, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
             sorted.clear();
@@ -299,26 +341,22 @@ impl Arena {
                     }
                 }
                 let i = first + k;
-                if self.q[i] == NONE {
+                // Only spacings to the same neighbouring contour are combined.
+                let p = partner[k];
+                if p == NONE {
                     continue;
                 }
-                // Only spacings to the same neighbouring contour are combined.
-                let partner = self.contour[self.q[i] as usize];
-                let same = |pos: usize| self.contour[self.q[first + pos] as usize] == partner;
-                let mut total = 0.0;
-                for (o, &wo) in weights.iter().enumerate().take(half + 1) {
-                    for j in [(k + o) % len, (k + len - o) % len] {
-                        if !d[first + j].is_nan() && same(j) {
+                let mut total = weights[0];
+                for (o, &wo) in weights.iter().enumerate().take(half + 1).skip(1) {
+                    for j in [wrap(k + o), wrap(k + len - o)] {
+                        if partner[j] == p {
                             total += wo;
-                        }
-                        if o == 0 {
-                            break;
                         }
                     }
                 }
                 let mut acc = 0.0;
                 let mut med = d[i];
-                for &(dj, pos) in sorted.iter().filter(|e| same(e.1)) {
+                for &(dj, pos) in sorted.iter().filter(|e| partner[e.1] == p) {
                     let off = pos.abs_diff(k);
                     acc += weights[off.min(len - off)];
                     med = dj;
@@ -329,6 +367,11 @@ impl Arena {
                 self.dstar[i] = med;
             }
         }
+    }
+
+    /// The reverse pairing (`rev_start`, `rev`): which points are paired with each point.
+    fn index_pairs(&mut self) {
+        let n = self.pos.len();
         let mut count = vec![0u32; n + 1];
         for &j in &self.q {
             if j != NONE {
@@ -798,6 +841,47 @@ pub(crate) mod tests {
         let moved =
             (0..before.pos.len()).filter(|&i| !after.alive[i] || after.pos[i] != before.pos[i]).count();
         assert!(moved > 0);
+    }
+
+    #[test]
+    fn pairing_finds_what_a_search_of_every_point_finds() {
+        // The bucketed ring search against the rule itself: every other point within reach
+        // (not in the point's own neighbourhood along its contour), nearest first, ties to
+        // the lower index; the first of the first MAX_TESTS in sight is the pair.
+        let params = RestoreParams::default();
+        let nb = params.neighbours as f64;
+        let mut paired = 0;
+        for seed in 1..=6 {
+            let (w, h) = (150 + 7 * seed as u32, 120 - 3 * seed as u32);
+            let scene = crate::restore::synthetic::damaged_pattern(w, h, 14.0, seed);
+            let (w, h) = (w as usize, h as usize);
+            let active = vec![true; w * h];
+            let mut ar = Arena::new(&trace_patches(&scene.damaged.data, &active, w, h, 0), &active, w, h);
+            ar.pair(w, h, &params);
+            let occ = ar.occupancy(w + 1, h);
+            let reach2 = params.reach_px * params.reach_px;
+            for i in 0..ar.pos.len() {
+                let p = ar.pos[i];
+                let mut candidates: Vec<(u64, usize)> = (0..ar.pos.len())
+                    .filter(|&j| j != i)
+                    .filter_map(|j| {
+                        let e = sub(p, ar.pos[j]);
+                        let dd2 = e[0] * e[0] + e[1] * e[1];
+                        let own = ar.contour[j] == ar.contour[i] && ar.near_along(i, j, e, dd2, nb);
+                        (dd2 <= reach2 && !own).then_some((dd2.to_bits(), j))
+                    })
+                    .collect();
+                candidates.sort_unstable();
+                let want = candidates.iter().take(MAX_TESTS).find(|&&(_, j)| {
+                    let q = ar.pos[j];
+                    visible(&occ, w + 1, (p[0] as i32, p[1] as i32), (q[0] as i32, q[1] as i32))
+                });
+                let got = (ar.q[i] != NONE).then_some(ar.q[i] as usize);
+                assert_eq!(got, want.map(|&(_, j)| j), "seed {seed}, point {i} at {p:?}");
+                paired += usize::from(got.is_some());
+            }
+        }
+        assert!(paired > 1000, "{paired}");
     }
 
     /// Runs one cell on a whole buffer.
