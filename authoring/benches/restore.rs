@@ -1,5 +1,5 @@
 //! Restoration speed: a synthetic damaged pattern restored with default parameters and the
-//! CLI's automatic grid, at 1 MP and 4 MP (target: 4 MP in under 5 s on 2 cores).
+//! CLI's automatic grid, at 1 MP and 4 MP (target: 4 MP in under 2 s on 2 cores).
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use restage_authoring::restore::synthetic::damaged_pattern;
