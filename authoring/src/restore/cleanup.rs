@@ -11,7 +11,7 @@ use super::{ClassInfo, MASKED};
 ///
 /// A scanline flood: each seed grows into its whole run of the row, so a pixel costs a few
 /// reads rather than a stack push and four neighbour lookups (this runs four times over the
-/// whole image per region and was a fifth of restoration's single-threaded time).
+/// whole image per region, on one core, and was about an eighth of restoration's time).
 fn for_components(
     work: &mut [u8],
     w: usize,
@@ -549,7 +549,6 @@ mod tests {
 
     /// The labelling as first written (a pixel stack), against which the scanline flood is
     /// checked.
-    /// neighbour outside the image or the mask.
     fn components_by_pixel_flood(
         work: &mut [u8],
         w: usize,
