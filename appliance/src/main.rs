@@ -17,7 +17,18 @@ use restage_shared::text::printable;
 use tracing_subscriber::EnvFilter;
 
 #[derive(Parser)]
-#[command(name = "restage-appliance", version, about = "Play a signed restage bundle on the stage")]
+#[command(
+    name = "restage-appliance",
+    version,
+    about = "Play a signed restage bundle on the stage",
+    long_about = "Play a signed restage bundle on the stage: when a visitor presses the button, \
+light the object with the bundle's projector images for the exposure time, inside the daily and \
+yearly lux-hour budget, and keep the projectors dark otherwise and on any fault.\n\n\
+Files: /etc/restage/appliance.toml, the configuration (every key documented in it); \
+/etc/restage/trust/*.pub.pem, the keys whose bundles are accepted; /var/lib/restage/, the light \
+ledger (ledger.sqlite) and the active bundle. The service is restage-appliance.service \
+(systemctl status restage-appliance; journalctl -u restage-appliance)."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -376,4 +387,47 @@ fn ask(socket: &Path, command: &str) -> std::io::Result<String> {
     let mut line = String::new();
     BufReader::new(s).read_line(&mut line)?;
     Ok(line.trim_end().to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Cli;
+    use clap::CommandFactory;
+    use std::path::Path;
+
+    /// The Debian package ships `appliance/man/*.1`; they must say what the program does, so
+    /// they are generated from the command line's own definition and checked here.
+    /// `RESTAGE_UPDATE_GOLDEN=1` rewrites them after a change to the options.
+    #[test]
+    fn the_packaged_man_pages_are_the_command_lines_own() {
+        let fresh = tempfile::tempdir().unwrap();
+        clap_mangen::generate_to(Cli::command(), fresh.path()).unwrap();
+        let committed = Path::new(env!("CARGO_MANIFEST_DIR")).join("man");
+        let pages = |dir: &Path| {
+            let mut names: Vec<String> = std::fs::read_dir(dir)
+                .map(|d| d.map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect())
+                .unwrap_or_default();
+            names.sort();
+            names
+        };
+        if std::env::var_os("RESTAGE_UPDATE_GOLDEN").is_some() {
+            let _ = std::fs::remove_dir_all(&committed);
+            std::fs::create_dir_all(&committed).unwrap();
+            for name in pages(fresh.path()) {
+                std::fs::copy(fresh.path().join(&name), committed.join(&name)).unwrap();
+            }
+        }
+        let names = pages(fresh.path());
+        assert!(names.contains(&"restage-appliance.1".to_string()), "{names:?}");
+        assert_eq!(pages(&committed), names, "man pages in {}", committed.display());
+        for name in &names {
+            let want = std::fs::read(fresh.path().join(name)).unwrap();
+            let have = std::fs::read(committed.join(name)).unwrap();
+            assert!(
+                want == have,
+                "{} differs from what the command line generates; RESTAGE_UPDATE_GOLDEN=1 rewrites it",
+                committed.join(name).display()
+            );
+        }
+    }
 }
