@@ -22,10 +22,12 @@ use crate::calibrate::lux::{LuxError, LuxFit, LuxReadings, apply_lux};
 use crate::calibrate::radiometry::{
     ProjectorRadiometry, RadiometryError, ResponseBuilder, full_irradiance, gain_map,
 };
+use crate::calibrate::selfcal::ProjectorGeometry;
 use crate::calibrate::transport::{
     self, DotSignal, Predictor, RefineStats, SnapContext, SnapParams, TransportError, TransportResult,
     noise_sigma,
 };
+use crate::calibrate::triangulate::{self, DenseGeometry, TriangulateParams};
 use crate::capture_set::{CaptureManifest, Pattern, ProjectorCapture};
 use crate::imgio::{ImageError, LinearImage};
 use crate::stage_model::StageModel;
@@ -215,16 +217,18 @@ pub fn measure_radiometry(
 }
 
 /// Runs every photometric step on `model` (whose geometry and correspondences are calibrated):
-/// transport (refining the correspondences), responses, vignetting, black levels and stray
-/// light, lux, gain, ambient.
+/// transport (refining the correspondences), the points and normals triangulated again from
+/// the refined correspondences (returned, for the report), responses, vignetting, black levels
+/// and stray light, lux, gain, ambient.
 pub fn calibrate_photometry(
     dir: &Path,
     manifest: &CaptureManifest,
     model: &mut StageModel,
     lux: &LuxReadings,
     params: &SnapParams,
+    triangulate: &TriangulateParams,
     progress: Progress,
-) -> Result<PhotometricReport, PhotometricError> {
+) -> Result<(PhotometricReport, DenseGeometry), PhotometricError> {
     let n = model.projectors.len();
     if manifest.projectors.len() != n {
         return Err(PhotometricError::ProjectorCount { model: n, capture: manifest.projectors.len() });
@@ -281,6 +285,19 @@ pub fn calibrate_photometry(
         report.radiometry.push(rad);
         blacks.push(black);
     }
+    // The dots moved the correspondences: triangulate again with the same projectors, so that
+    // the saved points are the ones the saved correspondences give (one consistent model) and
+    // the fits below use them.
+    let geometry: Vec<ProjectorGeometry> = model.projectors.iter().map(ProjectorGeometry::from).collect();
+    let maps: Vec<&[[f32; 2]]> = model.correspondences.iter().map(Vec::as_slice).collect();
+    let dense = triangulate::triangulate(&model.camera, &geometry, &maps, triangulate);
+    info!(
+        "triangulated again from the refined correspondences: {} points, reprojection RMS {:.3} px",
+        dense.valid,
+        dense.rms_px()
+    );
+    model.points = dense.points.clone();
+    model.normals = dense.normals.clone();
     // Vignetting from overlaps, then the black levels and stray light, then lux and gain.
     report.vignetting = fit_vignetting(model, &lits, &mut report.warnings);
     let lit_refs: Vec<&[[f32; 3]]> = lits.iter().map(|l| l.as_slice()).collect();
@@ -325,7 +342,7 @@ pub fn calibrate_photometry(
     for w in &report.warnings {
         warn!("{w}");
     }
-    Ok(report)
+    Ok((report, dense))
 }
 
 /// Least-squares black levels per projector and channel plus a stray-light term, from the

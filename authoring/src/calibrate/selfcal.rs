@@ -89,6 +89,21 @@ impl ProjectorGeometry {
     }
 }
 
+/// A stage model's projector as the solver sees it (the inverse of what `build_model` stores).
+impl From<&crate::stage_model::ProjectorModel> for ProjectorGeometry {
+    fn from(p: &crate::stage_model::ProjectorModel) -> Self {
+        Self {
+            width: p.width,
+            height: p.height,
+            f: p.f,
+            cx: p.cx,
+            cy: p.cy,
+            rotation: Matrix3::from_fn(|r, c| p.rotation[r][c]),
+            translation: Vector3::from(p.translation),
+        }
+    }
+}
+
 /// How well the solution is determined, per projector (standard deviations from the
 /// Gauss-Newton covariance at the optimum, gauge fixed by the scale).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -54,7 +54,10 @@ pub struct SnapParams {
     /// share of light cannot be measured.
     pub lit_sigmas: f32,
     /// Refined correspondences further than this (projector px) from the decoded ones are
-    /// treated as disagreements and not applied.
+    /// treated as disagreements and not applied. The phase-shift decode is within 0.3-0.4 px
+    /// at its 99th percentile inside the object, so a dot fit that moves a pixel further is
+    /// more likely wrong (a dot straddling a paint edge is pulled towards the lighter paint):
+    /// at 2 px the refined correspondences' 99th percentile error was 1.0-1.5 px (docs/calibrate.md).
     pub max_refine_shift: f32,
 }
 
@@ -65,7 +68,7 @@ impl Default for SnapParams {
             member_sigmas: 3.0,
             max_radius: 24,
             lit_sigmas: 10.0,
-            max_refine_shift: 2.0,
+            max_refine_shift: 0.5,
         }
     }
 }
@@ -605,9 +608,13 @@ pub struct RefineStats {
     pub median_shift: f32,
 }
 
+/// Width (camera px, Gaussian sigma) of the taper between refined and unrefined correspondences.
+const SEAM_SIGMA_PX: f32 = 2.0;
+
 /// Refines per-camera-pixel correspondences with snapped dots: at each camera pixel, a
 /// Gaussian-weighted local affine fit of projector coordinate against camera position over
-/// the dots within a few pixels, evaluated at the pixel.
+/// the dots within a few pixels, evaluated at the pixel, and tapered towards the decoded value
+/// where the pixels around were not refined.
 pub fn refine_correspondences(
     correspondence: &[[f32; 2]],
     cam_width: u32,
@@ -667,16 +674,30 @@ pub fn refine_correspondences(
         .collect();
     let mut stats = RefineStats::default();
     let mut shifts = Vec::new();
+    // Each refined pixel moves from its decoded value towards its dot fit by the share of
+    // refined pixels around it (a Gaussian of SEAM_SIGMA_PX over the decoded pixels), so the
+    // seams between refined and unrefined pixels taper instead of stepping: a step is a bump
+    // in the surface triangulated from them. The fit itself is kept whole inside refined areas
+    // (smoothing the shift instead would bring the decode's per-pixel noise back).
+    let valid: Vec<bool> = correspondence.iter().map(|c| c[0].is_finite() && c[1].is_finite()).collect();
+    let is_refined: Vec<f32> =
+        results.iter().map(|(_, o)| if matches!(o, Outcome::Refined(_)) { 1.0 } else { 0.0 }).collect();
+    let share = smooth_masked(&is_refined, &valid, w, h, SEAM_SIGMA_PX);
     let mut refined = Vec::with_capacity(results.len());
-    for (c, o) in results {
-        refined.push(c);
+    for ((r, o), (c, &near)) in results.into_iter().zip(correspondence.iter().zip(&share)) {
+        let a = if matches!(o, Outcome::Refined(_)) { near } else { 0.0 };
+        refined.push(if c[0].is_finite() && c[1].is_finite() {
+            [c[0] + a * (r[0] - c[0]), c[1] + a * (r[1] - c[1])]
+        } else {
+            *c
+        });
         match o {
             Outcome::Skip => {}
             Outcome::Few => stats.too_few_dots += 1,
             Outcome::Disagree => stats.disagreed += 1,
-            Outcome::Refined(s) => {
+            Outcome::Refined(shift) => {
                 stats.refined += 1;
-                shifts.push(s);
+                shifts.push(a * shift);
             }
         }
     }
@@ -685,6 +706,38 @@ pub fn refine_correspondences(
         stats.median_shift = *shifts.select_nth_unstable_by(mid, f32::total_cmp).1;
     }
     (refined, stats)
+}
+
+/// Gaussian smoothing of `field` over the pixels where `valid`, normalised by the weight that
+/// falls on valid pixels (the others neither give nor take); 0 where not valid.
+fn smooth_masked(field: &[f32], valid: &[bool], w: usize, h: usize, sigma: f32) -> Vec<f32> {
+    let r = (3.0 * sigma).ceil() as i64;
+    let kernel: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    // (weighted sum of the field, sum of weights) per pixel, one axis at a time.
+    let pass = |src: &[[f32; 2]], horizontal: bool| -> Vec<[f32; 2]> {
+        (0..w * h)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = ((i % w) as i64, (i / w) as i64);
+                let mut acc = [0.0f32; 2];
+                for (k, wt) in (-r..=r).zip(&kernel) {
+                    let (u, v) = if horizontal { (x + k, y) } else { (x, y + k) };
+                    if (0..w as i64).contains(&u) && (0..h as i64).contains(&v) {
+                        let s = src[v as usize * w + u as usize];
+                        acc = [acc[0] + wt * s[0], acc[1] + wt * s[1]];
+                    }
+                }
+                acc
+            })
+            .collect()
+    };
+    let start: Vec<[f32; 2]> =
+        field.iter().zip(valid).map(|(&f, &ok)| if ok { [f, 1.0] } else { [0.0; 2] }).collect();
+    pass(&pass(&start, true), false)
+        .iter()
+        .zip(valid)
+        .map(|(a, &ok)| if ok && a[1] > 0.0 { a[0] / a[1] } else { 0.0 })
+        .collect()
 }
 
 /// Weighted least-squares fit `q = a + J (c - p)` over the dots bucketed within `radius` of

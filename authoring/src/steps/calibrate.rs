@@ -104,7 +104,7 @@ pub fn calibrate(
 
     // Step 3: self-calibrate all projectors jointly, scale, triangulate (or, with a saved rig,
     // check it still holds and triangulate with it).
-    let (mut model, report, dense) = match &source {
+    let (mut model, mut report, mut dense) = match &source {
         GeometrySource::SelfCalibrate(_) => {
             progress.stage("self-calibrating and triangulating");
             let (model, report, dense, _) = geometry::solve_geometry(&manifest, &decodes, &options)
@@ -135,15 +135,22 @@ pub fn calibrate(
             progress.stage(stage);
             progress.count(done as u64, total as u64);
         };
-        let photo = photometric::calibrate_photometry(
+        let (photo, refined) = photometric::calibrate_photometry(
             capture,
             &manifest,
             &mut model,
             lux,
             &SnapParams::default(),
+            &options.triangulate,
             &show,
         )
         .with_context(|| format!("photometric calibration of {}", capture.display()))?;
+        // The model's points are now those of the refined correspondences: report them.
+        report.dense_rms_px = refined.rms_px();
+        report.points = refined.valid;
+        report.rejected_by_residual = refined.rejected_residual;
+        report.rejected_by_depth = refined.rejected_depth;
+        dense = refined;
         let sizes: Vec<(u32, u32)> = manifest.projectors.iter().map(|p| (p.width, p.height)).collect();
         photo
             .save(out, &sizes)
