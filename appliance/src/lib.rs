@@ -26,5 +26,6 @@ pub mod player;
 pub mod runtime;
 pub mod show;
 pub mod status;
+pub mod sysupdate;
 pub mod verify;
 pub mod zone;

@@ -114,6 +114,50 @@ enum Command {
         #[arg(long)]
         allow_demo_key: bool,
     },
+    /// Update the stage machine's own software (its image): verify a signed update folder,
+    /// write it to the root slot not running, and boot it on trial (it becomes the machine's
+    /// software once the appliance is ready on it; otherwise the machine goes back by itself).
+    Update {
+        #[command(subcommand)]
+        command: UpdateCommand,
+    },
+}
+
+/// Where the stage machine keeps the keys its image updates must be signed with (apart from
+/// the bundles' keys: whoever signs scenes cannot change the software).
+const UPDATE_TRUST: &str = "/etc/restage/update-trust";
+
+#[derive(Subcommand)]
+enum UpdateCommand {
+    /// Hash the update in DIR (root.squashfs, vmlinuz, initrd) and sign its manifest with
+    /// KEY (tools/image/build.sh does this on the build machine).
+    Sign {
+        dir: PathBuf,
+        /// The image version it installs (its IMAGE_VERSION).
+        #[arg(long)]
+        version: String,
+        /// The private key (PEM).
+        #[arg(long)]
+        key: PathBuf,
+    },
+    /// Check the update in DIR: signature, every file's size and hash.
+    Verify {
+        dir: PathBuf,
+        /// Directory of trusted public keys (*.pem).
+        #[arg(long, default_value = UPDATE_TRUST)]
+        trust: PathBuf,
+    },
+    /// Verify the update in DIR, then write it to the slot not running with a boot entry on
+    /// trial (run as root on the stage machine; reboot to start it).
+    Install {
+        dir: PathBuf,
+        /// Directory of trusted public keys (*.pem).
+        #[arg(long, default_value = UPDATE_TRUST)]
+        trust: PathBuf,
+        /// Boots the new slot gets to reach "appliance ready" before the machine goes back.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..=9))]
+        tries: u32,
+    },
 }
 
 #[derive(Subcommand)]
@@ -163,7 +207,38 @@ fn main() -> Result<()> {
         Command::Ledger { command: LedgerCommand::Export { config, csv: _, out } } => {
             ledger_export(&config.config, out.as_deref())
         }
+        Command::Update { command } => update(command),
     }
+}
+
+fn update(command: UpdateCommand) -> Result<()> {
+    use restage_appliance::sysupdate;
+    let trusted = |trust: &Path| {
+        restage_shared::keys::TrustStore::load_dir(trust)
+            .with_context(|| format!("the update keys in {}", trust.display()))
+    };
+    match command {
+        UpdateCommand::Sign { dir, version, key } => {
+            let key = restage_shared::keys::load_private_key(&key)?;
+            let m = sysupdate::sign(&dir, &version, &key)?;
+            println!("signed update {} in {}", m.version, dir.display());
+        }
+        UpdateCommand::Verify { dir, trust } => {
+            let m = sysupdate::verify(&dir, &trusted(&trust)?, &trust)?;
+            println!("update {} in {}: signature and files good", m.version, dir.display());
+        }
+        UpdateCommand::Install { dir, trust, tries } => {
+            let m = sysupdate::verify(&dir, &trusted(&trust)?, &trust)?;
+            let layout = sysupdate::Layout::of_this_machine()?;
+            let slot = sysupdate::install(&dir, &m, &layout, tries)?;
+            tracing::info!(version = %m.version, %slot, tries, "image update installed");
+            println!(
+                "update {} installed in slot {slot} (running: {} in slot {}); it starts at the next boot, on trial for {tries} boots",
+                m.version, layout.running_version, layout.running
+            );
+        }
+    }
+    Ok(())
 }
 
 fn ledger_export(config: &Path, out: Option<&Path>) -> Result<()> {

@@ -16,12 +16,11 @@
 
 mod qemu_common;
 
-use std::io::{BufRead, BufReader, Write};
-use std::os::unix::net::UnixStream;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use qemu_common::{Boot, H, HEADS, MACHINE, W, field, spec, stamp_s};
+use qemu_common::{Boot, H, HEADS, MACHINE, Qmp, W, expect_heads, field, spec, stamp_s};
 use restage_appliance::output::kms::xrgb8888_to_rgb8;
 use restage_shared::bundle::example::{ExampleSpec, example_frame};
 
@@ -47,123 +46,6 @@ fn payload(dir: &Path, atomic: bool) {
                   [inputs.serial]\npath = \"/dev/ttyS1\"\nbaud = 115200\n";
     let config = config.replace("[inputs.serial]", &format!("atomic = {atomic}\n[inputs.serial]"));
     std::fs::write(dir.join("config.toml"), config).unwrap();
-}
-
-/// QMP: one JSON command per line, skipping asynchronous events.
-struct Qmp {
-    stream: BufReader<UnixStream>,
-}
-
-impl Qmp {
-    fn connect(path: &Path) -> Qmp {
-        let start = Instant::now();
-        let s = loop {
-            match UnixStream::connect(path) {
-                Ok(s) => break s,
-                Err(e) if start.elapsed() > Duration::from_secs(20) => panic!("QMP {}: {e}", path.display()),
-                Err(_) => std::thread::sleep(Duration::from_millis(50)),
-            }
-        };
-        s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-        let mut q = Qmp { stream: BufReader::new(s) };
-        q.read_reply(); // the greeting
-        q.execute(serde_json::json!({"execute": "qmp_capabilities"}));
-        q
-    }
-
-    fn read_reply(&mut self) -> serde_json::Value {
-        loop {
-            let mut line = String::new();
-            self.stream.read_line(&mut line).expect("QMP answers");
-            assert!(!line.is_empty(), "QMP closed");
-            let v: serde_json::Value = serde_json::from_str(&line).expect("QMP speaks JSON");
-            if v.get("event").is_none() {
-                return v;
-            }
-        }
-    }
-
-    fn execute(&mut self, cmd: serde_json::Value) -> serde_json::Value {
-        let s = self.stream.get_mut();
-        s.write_all(format!("{cmd}\n").as_bytes()).unwrap();
-        let v = self.read_reply();
-        assert!(v.get("error").is_none(), "QMP {cmd}: {v}");
-        v
-    }
-
-    /// Head `head`'s picture as RGB8.
-    fn screendump(&mut self, dir: &Path, head: usize) -> (u32, u32, Vec<u8>) {
-        let file = dir.join(format!("head{head}.png"));
-        let _ = std::fs::remove_file(&file);
-        self.execute(serde_json::json!({"execute": "screendump", "arguments": {
-            "filename": file, "device": "gpu0", "head": head, "format": "png"}}));
-        let img = image::open(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display())).to_rgb8();
-        (img.width(), img.height(), img.into_raw())
-    }
-}
-
-/// Checks that `heads` (all when `None`) show `want[k]`, polling until `timeout` (see
-/// `these_heads_show`); panics naming `what` otherwise. With `RESTAGE_QEMU_SHOTS=DIR` the
-/// last screendumps are kept as `DIR/<variant>-<n>-<what>-head<k>.png` (pass or fail), for
-/// people to look at.
-fn expect_heads(
-    qmp: &mut Qmp,
-    dir: &Path,
-    heads: Option<&[usize]>,
-    want: &[Vec<u8>],
-    timeout: Duration,
-    what: &str,
-) {
-    let all: Vec<usize> = (0..want.len()).collect();
-    let heads = heads.unwrap_or(&all);
-    let result = these_heads_show(qmp, dir, heads, want, timeout);
-    if let Ok(keep) = std::env::var("RESTAGE_QEMU_SHOTS") {
-        static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-        let variant = dir.file_name().and_then(|f| f.to_str()).unwrap_or("shots");
-        let slug: String = what.chars().map(|c| if c.is_ascii_alphanumeric() { c } else { '-' }).collect();
-        std::fs::create_dir_all(&keep).unwrap();
-        for &k in heads {
-            let to = Path::new(&keep).join(format!("{variant}-{n:02}-{slug}-head{k}.png"));
-            let _ = std::fs::copy(dir.join(format!("head{k}.png")), to);
-        }
-    }
-    if let Err(e) = result {
-        panic!("{what}: {e}");
-    }
-}
-
-/// Polls the heads in `heads` until each equals `want[k]` (RGB8, W x H) or the timeout
-/// passes; returns the last mismatch.
-fn these_heads_show(
-    qmp: &mut Qmp,
-    dir: &Path,
-    heads: &[usize],
-    want: &[Vec<u8>],
-    timeout: Duration,
-) -> Result<(), String> {
-    let start = Instant::now();
-    loop {
-        let mut bad = None;
-        for &k in heads {
-            let want = &want[k];
-            let (w, h, got) = qmp.screendump(dir, k);
-            if (w, h) != (W, H) {
-                bad = Some(format!("head {k} is {w}x{h}, not {W}x{H}"));
-                break;
-            }
-            if got != *want {
-                let diff = got.iter().zip(want).filter(|(a, b)| a != b).count();
-                bad = Some(format!("head {k}: {diff} of {} bytes differ", want.len()));
-                break;
-            }
-        }
-        match bad {
-            None => return Ok(()),
-            Some(b) if start.elapsed() > timeout => return Err(b),
-            Some(_) => std::thread::sleep(Duration::from_millis(100)),
-        }
-    }
 }
 
 #[test]

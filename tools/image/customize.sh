@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Makes a Debian root file system the stage machine's read-only appliance root; run by
+# tools/image/build.sh as an mmdebstrap customize hook (after the packages are installed,
+# with /proc, /sys and /dev mounted in the root).
+#
+#   tools/image/customize.sh ROOT IMAGE_VERSION
+set -euo pipefail
+root="$1"; version="$2"
+here="$(cd "$(dirname "$0")" && pwd)"
+fail() { echo "customize.sh: $*" >&2; exit 1; }
+
+# The image's own configuration files (tools/image/rootfs).
+cp -a "$here/rootfs/." "$root/"
+kver="$(ls "$root/usr/lib/modules" | sort -V | tail -n1)"
+# The initramfs holds only what finds and mounts the root: the disk controllers of a small
+# PC and of the emulated machine, squashfs and ext4.
+printf 'MODULES=list\nCOMPRESS=zstd\n' > "$root/etc/initramfs-tools/conf.d/restage"
+printf '%s\n' squashfs ext4 virtio_pci virtio_blk nvme ahci sd_mod xhci_pci usb_storage uas > "$root/etc/initramfs-tools/modules"
+chroot "$root" update-initramfs -u -k "$kver" >/dev/null 2>&1 || fail "update-initramfs failed"
+# No login on any display output; the serial console (ttyS0) is the service staff's.
+ln -sf /dev/null "$root/etc/systemd/system/getty@.service"
+ln -sf /dev/null "$root/etc/systemd/system/autovt@.service"
+ln -sf /dev/null "$root/etc/systemd/system/getty-static.service"
+# Nothing to download or back up on a read-only root without a network.
+# (e2scrub needs LVM snapshots, which the image has not.)
+for unit in apt-daily.timer apt-daily-upgrade.timer dpkg-db-backup.timer e2scrub_all.timer e2scrub_reap.service; do
+    ln -sf /dev/null "$root/etc/systemd/system/$unit"
+done
+# A slot on trial becomes good once the appliance is ready (restage-boot-check.service).
+chroot "$root" systemctl enable restage-boot-check.service >/dev/null 2>&1 || fail "cannot enable restage-boot-check.service"
+chroot "$root" systemctl is-enabled -q restage-appliance.service || fail "the appliance's unit is not enabled"
+# The configuration moves to the data partition; the image keeps the factory copy.
+mkdir -p "$root/usr/share/factory/etc"
+mv "$root/etc/restage" "$root/usr/share/factory/etc/restage"
+ln -s /var/lib/restage-etc "$root/etc/restage"
+mkdir -p "$root/efi"
+# Where service staff mount a stick on the read-only root (an update: README).
+mkdir -p "$root/media/stick"
+echo restage-stage > "$root/etc/hostname"
+# One machine id for every machine of this image (build.sh writes it after mmdebstrap, which
+# empties it as it finishes): PID 1 reads it before the data partition is mounted, and a
+# read-only root cannot keep a generated one (with a new id every boot the journal would start
+# a new folder every boot, outside its size cap). The machines have no network, where a shared
+# id could matter.
+# No display manager, no graphical session: the appliance owns the outputs.
+chroot "$root" systemctl set-default multi-user.target >/dev/null 2>&1 || fail "cannot set the default target"
+printf 'IMAGE_ID=restage\nIMAGE_VERSION=%s\n' "$version" >> "$root/usr/lib/os-release"
