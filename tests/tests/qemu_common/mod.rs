@@ -157,14 +157,15 @@ pub fn spawn(mut cmd: Command, echo: bool) -> (Guest, Console) {
         let mut buf = Vec::new();
         while r.read_until(b'\n', &mut buf).is_ok_and(|n| n > 0) {
             let at = Instant::now();
+            let whole = buf.ends_with(b"\n");
             let text = String::from_utf8_lossy(&buf).replace('\r', "").trim_end().to_string();
             buf.clear();
-            if tx.send((at, text)).is_err() {
+            if tx.send((at, text, whole)).is_err() {
                 return;
             }
         }
     });
-    (Guest(child), Console { stdin, lines, seen: Vec::new(), seen_at: Vec::new(), echo })
+    (Guest(child), Console { stdin, lines, seen: Vec::new(), seen_at: Vec::new(), cut_short: None, echo })
 }
 
 /// `tcg` (software emulation), or `RESTAGE_QEMU_ACCEL`.
@@ -192,17 +193,24 @@ impl Drop for Guest {
 /// The guest's console: lines arrive on a channel with the moment they arrived, and are kept.
 pub struct Console {
     stdin: ChildStdin,
-    lines: mpsc::Receiver<(Instant, String)>,
+    lines: mpsc::Receiver<(Instant, String, bool)>,
     pub seen: Vec<String>,
     /// When each line of `seen` arrived.
     pub seen_at: Vec<Instant>,
+    /// The last line when QEMU stopped in the middle of it (a power cut while the guest was
+    /// writing): its last field may be cut, so it is kept here and not in `seen`.
+    pub cut_short: Option<String>,
     echo: bool,
 }
 
 impl Console {
-    fn keep(&mut self, at: Instant, line: String) {
+    fn keep(&mut self, at: Instant, line: String, whole: bool) {
         if self.echo {
-            eprintln!("guest| {line}");
+            eprintln!("guest| {line}{}", if whole { "" } else { " [cut short]" });
+        }
+        if !whole {
+            self.cut_short = Some(line);
+            return;
         }
         self.seen.push(line);
         self.seen_at.push(at);
@@ -230,8 +238,8 @@ impl Console {
         loop {
             let left = timeout.checked_sub(start.elapsed())?;
             match self.lines.recv_timeout(left) {
-                Ok((at, line)) => {
-                    self.keep(at, line.clone());
+                Ok((at, line, whole)) => {
+                    self.keep(at, line.clone(), whole);
                     if parts.iter().all(|p| line.contains(p)) {
                         return Some((at, line));
                     }
@@ -246,7 +254,7 @@ impl Console {
     pub fn pump_until(&mut self, until: Instant) {
         while let Some(left) = until.checked_duration_since(Instant::now()) {
             match self.lines.recv_timeout(left) {
-                Ok((at, line)) => self.keep(at, line),
+                Ok((at, line, whole)) => self.keep(at, line, whole),
                 Err(mpsc::RecvTimeoutError::Timeout) => return,
                 Err(mpsc::RecvTimeoutError::Disconnected) => {
                     std::thread::sleep(left);
@@ -258,8 +266,8 @@ impl Console {
 
     /// After QEMU is gone: keeps every line it had written (until the pipe's end).
     pub fn drain(&mut self) {
-        while let Ok((at, line)) = self.lines.recv_timeout(Duration::from_secs(10)) {
-            self.keep(at, line);
+        while let Ok((at, line, whole)) = self.lines.recv_timeout(Duration::from_secs(10)) {
+            self.keep(at, line, whole);
         }
     }
 
