@@ -26,7 +26,7 @@ use std::time::{Duration, Instant};
 use qemu_common::{H, HEADS, MACHINE, Qmp, W, expect_heads, spec};
 use restage_appliance::output::kms::xrgb8888_to_rgb8;
 use restage_appliance::sysupdate;
-use restage_shared::bundle::example::example_frame;
+use restage_shared::bundle::example::{ExampleSpec, example_frame};
 use restage_shared::keys::{SigningKey, public_key_to_pem, signing_key_from_seed};
 
 /// Length of a showing (the exposure timer), seconds.
@@ -65,6 +65,7 @@ fn data_partition(dir: &Path) {
     std::os::unix::fs::symlink("private/restage", dir.join("lib/restage")).unwrap();
     qemu_common::write_bundle(&state.join("active.bundle"), &spec(), &qemu_common::policy(SHOWING_S));
     let config = "trust_dir = \"/etc/restage/trust\"\nstate_dir = \"/var/lib/restage\"\n\
+                  inbox_dir = \"/media/stick\"\n\
                   [player]\nfade_ms = 300\nfade_fps = 10\nmin_press_interval_ms = 100\n\
                   [output]\nkind = \"kms\"\ncard = \"/dev/dri/card0\"\n\
                   connectors = [\"Virtual-1\", \"Virtual-2\", \"Virtual-3\"]\natomic = true\n\
@@ -128,6 +129,8 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
         .arg("--data")
         .arg(d.join("data"))
         .args(["--kernel-args", &format!("{} systemd.journald.forward_to_console=1", video.join(" "))]));
+    let stick = d.join("stick.img");
+    let (new_spec, new_version) = bundle_stick(&d.join("stick"), &stick);
     let updates = d.join("updates.img");
     update_disk(&image.with_extension("update"), &d.join("updates"), &updates);
     let vars = d.join("OVMF_VARS.fd");
@@ -142,6 +145,8 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
         // The updates, as a service technician's stick would bring them (/dev/vdb).
         .args(["-drive", &format!("if=virtio,format=raw,readonly=on,file={}", updates.display())])
         .args(["-device", "virtio-gpu-pci,max_outputs=3,id=gpu0", "-vga", "none", "-display", "none"])
+        // A USB controller, for the stick with bundles plugged in later (QMP device_add).
+        .args(["-device", "qemu-xhci,id=xhci"])
         // A hardware watchdog for systemd's RuntimeWatchdogSec to arm.
         .args(["-device", "i6300esb"])
         .args(["-serial", "stdio"])
@@ -155,10 +160,7 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
     // Before power-on (QEMU started stopped): what each head shows with no signal at all.
     let no_signal: Vec<_> = (0..HEADS).map(|k| qmp.screendump(&shots, k)).collect();
     let spec = spec();
-    let scene = |s: usize| -> Vec<Vec<u8>> {
-        (0..HEADS).map(|k| xrgb8888_to_rgb8(&example_frame(&spec, s, k))).collect()
-    };
-    let (original, restored) = (scene(0), scene(1));
+    let (original, restored) = (scene_of(&spec, 0), scene_of(&spec, 1));
 
     // Power on, and watch every head until all show the original scene. The emulated
     // firmware (OVMF) draws its logo on head 0 at its own resolution before anything of the
@@ -275,6 +277,77 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
     ] {
         assert!(report.contains(&want), "service console report lacks {want:?}: {report}");
     }
+
+    // The bundle inbox: an operator plugs in a USB stick holding a new signed bundle and a
+    // tampered one. The new one is installed between showings and plays from the next press;
+    // the tampered one is refused and named in the journal; each is moved on the stick to
+    // installed/ or refused/, where the operator sees what became of it.
+    let t_stick = Instant::now();
+    qmp.execute(serde_json::json!({"execute": "blockdev-add", "arguments": {
+        "driver": "raw", "node-name": "stick", "file": {"driver": "file", "filename": stick}}}));
+    qmp.execute(serde_json::json!({"execute": "device_add", "arguments": {
+        "driver": "usb-storage", "bus": "xhci.0", "drive": "stick", "id": "stick", "removable": true}}));
+    con.wait_for(&["mounted at /media/stick"], Duration::from_secs(60));
+    let installed_line =
+        con.wait_for(&["inbox: /media/stick/new.bundle installed"], Duration::from_secs(120));
+    assert!(installed_line.contains("moved to /media/stick/installed/new.bundle"), "{installed_line}");
+    let installed_after = t_stick.elapsed();
+    let refused_line =
+        con.wait_for(&["inbox: /media/stick/tampered.bundle refused"], Duration::from_secs(120));
+    assert!(refused_line.contains("moved to /media/stick/refused/tampered.bundle"), "{refused_line}");
+    let (new_original, new_restored) = (scene_of(&new_spec, 0), scene_of(&new_spec, 1));
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &new_original,
+        Duration::from_secs(30),
+        "the new bundle's original scene once it is installed",
+    );
+    button.write_all(b"PRESS\n").unwrap();
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &new_restored,
+        Duration::from_secs(2),
+        "the new bundle's restoration after PRESS",
+    );
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &new_original,
+        Duration::from_secs(20),
+        "the new bundle's original after the exposure timer",
+    );
+    let out = shell(
+        &mut con,
+        "ls /media/stick /media/stick/installed /media/stick/refused; cat /media/stick/refused/tampered.bundle.txt; \
+         echo journal=$(journalctl -b -u restage-appliance --no-pager | grep -c 'tampered.bundle refused'); \
+         restage-appliance status | grep -E '^playing:|refused'",
+    );
+    for want in [
+        "/media/stick/installed: new.bundle".to_string(),
+        "/media/stick/refused: tampered.bundle tampered.bundle.txt".into(),
+        "journal=1".into(),
+        format!("version {new_version}"),
+    ] {
+        assert!(out.contains(&want), "after the stick ({want:?}): {out}");
+    }
+    // Pulled out: unmounted at once, and the inbox holds nothing.
+    qmp.execute(serde_json::json!({"execute": "device_del", "arguments": {"id": "stick"}}));
+    con.wait_for(&["unmounted from /media/stick"], Duration::from_secs(60));
+    let out = shell(&mut con, "findmnt -n /media/stick; echo mounted=$?");
+    assert!(
+        out.contains("mounted=1"),
+        "the stick's file system is still mounted after it was pulled out: {out}"
+    );
+    eprintln!(
+        "FIGURES (bundle inbox, emulated machine): stick plugged in to the new bundle installed {:.1} s (settling 4 s, verified, copied, verified again); to its showing and the tampered one refused {:.1} s",
+        installed_after.as_secs_f64(),
+        t_stick.elapsed().as_secs_f64()
+    );
     // The ledger as it stands: the update must keep every row. The last row may be the
     // exposure under way (the idle scene is light too), which grows until it ends: the rows
     // before it are compared.
@@ -332,9 +405,9 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
         &mut qmp,
         &shots,
         None,
-        &original,
+        &new_original,
         Duration::from_secs(60),
-        "the original scene on v1 after the rollback",
+        "the new bundle's original scene on v1 after the rollback",
     );
 
     let m = shell(&mut con, "mount -o ro /dev/vdb /media/stick && echo mounted");
@@ -344,7 +417,14 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
     let installed = Instant::now();
     con.command("systemctl reboot");
     con.wait_for(&["automatic login"], Duration::from_secs(300));
-    expect_heads(&mut qmp, &shots, None, &original, Duration::from_secs(60), "the original scene on v2");
+    expect_heads(
+        &mut qmp,
+        &shots,
+        None,
+        &new_original,
+        Duration::from_secs(60),
+        "the new bundle's original scene on v2",
+    );
     // Marked good once the appliance is ready (systemd-bless-boot renames the entry).
     let mut report = String::new();
     for _ in 0..30 {
@@ -374,6 +454,35 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
         installed.elapsed().as_secs_f64()
     );
     con.command("systemctl poweroff");
+}
+
+/// Scene `s` of the bundle `spec` on every head, as RGB8.
+fn scene_of(spec: &ExampleSpec, s: usize) -> Vec<Vec<u8>> {
+    (0..HEADS).map(|k| xrgb8888_to_rgb8(&example_frame(spec, s, k))).collect()
+}
+
+/// The operator's USB stick, a FAT file system written to `disk`: `new.bundle` (a newer
+/// version of the test's bundle, dimmer pictures) and `tampered.bundle` (newer still, signed,
+/// then one byte changed). Returns the new bundle's spec and version.
+fn bundle_stick(work: &Path, disk: &Path) -> (ExampleSpec, u64) {
+    std::fs::create_dir_all(work).unwrap();
+    let new = ExampleSpec { version: spec().version + 1, peak_value: 170, ..spec() };
+    let policy = qemu_common::policy(SHOWING_S);
+    qemu_common::write_bundle(&work.join("new.bundle"), &new, &policy);
+    let tampered = work.join("tampered.bundle");
+    qemu_common::write_bundle(
+        &tampered,
+        &ExampleSpec { version: new.version + 1, peak_value: 120, ..spec() },
+        &policy,
+    );
+    let mut bytes = std::fs::read(&tampered).unwrap();
+    let at = bytes.len() / 2;
+    bytes[at] ^= 0x01;
+    std::fs::write(&tampered, bytes).unwrap();
+    run(Command::new("mkfs.vfat").args(["-C", "-n", "STICK"]).arg(disk).arg("65536"));
+    run(Command::new("mcopy").arg("-i").arg(disk).arg(work.join("new.bundle")).arg(&tampered).arg("::/"));
+    let version = new.version;
+    (new, version)
 }
 
 /// Runs `cmd` in the service console's shell and returns its output (standard output and

@@ -11,16 +11,19 @@
 # `restage-appliance update install` checks against the machine's /etc/restage/update-trust),
 # and OUT_DIR/restage-V.packages (every package and version inside). V defaults to the
 # appliance's version; --deb takes a package built already (else cargo-deb builds one);
-# --update-trust puts a public key into the image's update-trust. Dates come from SOURCE_DATE_EPOCH (default: the last commit's), so the same
-# commit and the same archive give the same root file system.
+# --update-trust puts a public key into the image's update-trust. Dates come from
+# SOURCE_DATE_EPOCH (default: the last commit's), so the same commit and the same archive give
+# the same root file system.
 # Needs root and the apt packages of tools/image/host-packages. Downloads go through apt
 # from the Debian archive and are kept in ${RESTAGE_IMAGE_CACHE:-$HOME/.cache/restage-image}.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 repo="$(cd "$here/../.." && pwd)"
 fail() { echo "build.sh: $*" >&2; exit 1; }
+# shellcheck source=tools/image/uuid.sh
+. "$here/uuid.sh"
 
-out="${1:-}"; [ -n "$out" ] || fail "usage: build.sh OUT_DIR [--version V] [--deb FILE]"
+out="${1:-}"; [ -n "$out" ] || fail "usage: build.sh OUT_DIR [--version V] [--deb FILE] [--update-key KEY.pem] [--update-trust PUB.pem]"
 shift
 version=""; deb=""; update_key=""; update_trust=""
 while [ $# -gt 0 ]; do
@@ -77,8 +80,10 @@ echo "== root file system: $(wc -l < "$out/$name.packages") packages ($(( $(date
 # --- What a running appliance never needs (the root was customised inside mmdebstrap by
 # customize.sh, with /proc and /dev mounted for update-initramfs).
 kver="$(ls "$root/usr/lib/modules" | sort -V | tail -n1)"
-# mmdebstrap empties the machine id as it finishes (right for a root that boots once as a new
-# machine); this image's is fixed, see customize.sh.
+# One machine id for every machine of this image, written here as mmdebstrap empties it as it
+# finishes: PID 1 reads it before the data partition is mounted, and a read-only root cannot
+# keep a generated one (with a new id every boot the journal would start a new folder every
+# boot, outside its size cap). The machines have no network, where a shared id could matter.
 printf '%s\n' "$(printf 'restage stage machine' | sha256sum | cut -c1-32)" > "$root/etc/machine-id"
 # Package lists and caches, documentation, locales.
 rm -rf "$root"/var/cache/apt/* "$root"/var/lib/apt/lists/* "$root"/tmp/* "$root"/var/log/* \
@@ -94,7 +99,7 @@ rm -rf "$km"/net "$km"/sound "$km"/drivers/net "$km"/drivers/bluetooth "$km"/dri
     "$km"/drivers/nfc "$km"/drivers/atm "$km"/drivers/ieee802154 "$km"/drivers/edac "$km"/drivers/vfio \
     "$km"/drivers/media/{usb,pci,dvb-frontends,dvb-core,tuners,i2c,platform,radio,common,mmc,spi,test-drivers,firewire}
 find "$km/fs" -mindepth 1 -maxdepth 1 -type d \
-    ! -name ext4 ! -name squashfs ! -name fat ! -name nls ! -name jbd2 ! -name mbcache \
+    ! -name ext4 ! -name squashfs ! -name fat ! -name exfat ! -name nls ! -name jbd2 ! -name mbcache \
     ! -name autofs ! -name efivarfs -exec rm -rf {} +
 # modules.dep as the package shipped it lists each module's dependencies: a module one of
 # whose dependencies is gone goes too, until none is left (Debian's System.map is a stub, so
@@ -111,7 +116,7 @@ while :; do
 done
 depmod -b "$root" "$kver"
 # What the stage machine cannot do without must have survived.
-for m in autofs4 efivarfs virtio-gpu i915 amdgpu nouveau i6300esb iTCO_wdt sp5100_tco usb-storage uas xhci-pci vfat squashfs ext4 hid-generic usbhid ftdi_sio cp210x pl2303 cdc-acm; do
+for m in autofs4 efivarfs virtio-gpu i915 amdgpu nouveau i6300esb iTCO_wdt sp5100_tco usb-storage uas xhci-pci sd_mod vfat exfat nls_cp437 nls_utf8 squashfs ext4 hid-generic usbhid ftdi_sio cp210x pl2303 cdc-acm; do
     modinfo -b "$root" -k "$kver" -F filename "$m" >/dev/null 2>&1 || fail "kernel module $m is missing from the image"
 done
 find "$root" -newermt "@$SOURCE_DATE_EPOCH" -print0 | xargs -0r touch --no-dereference --date="@$SOURCE_DATE_EPOCH"
@@ -140,15 +145,14 @@ rm -f "$img"
 # squashfs with room to grow; the data partition grows to the disk's end at first boot.
 esp_mb=128; slot_mb=768; data_mb=512
 truncate -s $(( (1 + esp_mb + 2 * slot_mb + data_mb + 1) * 1024 * 1024 )) "$img"
-uuid() { printf '%s' "$name $1" | sha256sum | sed -E 's/^(.{8})(.{4}).(.{3}).(.{3})(.{12}).*/\1-\2-4\3-8\4-\5/'; }
 sfdisk -q "$img" <<EOF
 label: gpt
-label-id: $(uuid disk)
+label-id: $(uuid "$name disk")
 first-lba: 2048
-size=${esp_mb}MiB, type=C12A7328-F81F-11D2-BA4B-00A0C93EC93B, uuid=$(uuid esp), name=esp
-size=${slot_mb}MiB, type=4F68BCE3-E8CD-4DB1-96E7-FBCAF984B709, uuid=$(uuid root-a), name=restage-root-a
-size=${slot_mb}MiB, type=4F68BCE3-E8CD-4DB1-96E7-FBCAF984B709, uuid=$(uuid root-b), name=restage-root-b
-size=${data_mb}MiB, type=0FC63DAF-8483-4772-8E79-3D69D8477DE4, uuid=$(uuid data), name=restage-data
+size=${esp_mb}MiB, type=C12A7328-F81F-11D2-BA4B-00A0C93EC93B, uuid=$(uuid "$name esp"), name=esp
+size=${slot_mb}MiB, type=4F68BCE3-E8CD-4DB1-96E7-FBCAF984B709, uuid=$(uuid "$name root-a"), name=restage-root-a
+size=${slot_mb}MiB, type=4F68BCE3-E8CD-4DB1-96E7-FBCAF984B709, uuid=$(uuid "$name root-b"), name=restage-root-b
+size=${data_mb}MiB, type=0FC63DAF-8483-4772-8E79-3D69D8477DE4, uuid=$(uuid "$name data"), name=restage-data
 EOF
 part() { partx -g -o START,SECTORS -n "$1" "$img"; }
 read -r esp_start esp_sectors <<<"$(part 1)"
@@ -167,7 +171,7 @@ printf 'timeout 0\nconsole-mode keep\neditor no\nauto-entries no\nauto-firmware 
 "$here/entry.sh" a "$version" "" > "$esp/loader/entries/restage-a.conf"
 find "$esp" -exec touch --date="@$SOURCE_DATE_EPOCH" {} +
 esp_img="$work/esp.img"
-mkfs.vfat -C -F 32 -n ESP -i "$(uuid esp-fs | cut -c1-8)" "$esp_img" $(( esp_sectors / 2 )) >/dev/null
+mkfs.vfat -C -F 32 -n ESP -i "$(uuid "$name esp-fs" | cut -c1-8)" "$esp_img" $(( esp_sectors / 2 )) >/dev/null
 MTOOLS_SKIP_CHECK=1 mcopy -s -m -i "$esp_img" "$esp"/* ::/
 dd if="$esp_img" of="$img" bs=512 seek="$esp_start" conv=notrunc,sparse status=none
 dd if="$upd/root.squashfs" of="$img" bs=512 seek="$a_start" conv=notrunc status=none

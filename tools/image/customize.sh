@@ -34,14 +34,16 @@ mkdir -p "$root/usr/share/factory/etc"
 mv "$root/etc/restage" "$root/usr/share/factory/etc/restage"
 ln -s /var/lib/restage-etc "$root/etc/restage"
 mkdir -p "$root/efi"
-# Where service staff mount a stick on the read-only root (an update: README).
+# A USB stick is mounted at /media/stick (rootfs/usr/lib/restage/stick): the bundle inbox, and
+# where service staff install updates from. The appliance, a dynamic user, writes there (it moves
+# a bundle it took to installed/ or refused/) as a member of group restage-stick, made here as
+# the root is read-only at run time.
 mkdir -p "$root/media/stick"
+chroot "$root" groupadd --system restage-stick || fail "cannot add group restage-stick"
+factory="$root/usr/share/factory/etc/restage/appliance.toml"
+grep -q '^# inbox_dir = ' "$factory" || fail "$factory has no inbox_dir line to set"
+sed -i 's|^# inbox_dir = .*|inbox_dir = "/media/stick"|' "$factory"
 echo restage-stage > "$root/etc/hostname"
-# One machine id for every machine of this image (build.sh writes it after mmdebstrap, which
-# empties it as it finishes): PID 1 reads it before the data partition is mounted, and a
-# read-only root cannot keep a generated one (with a new id every boot the journal would start
-# a new folder every boot, outside its size cap). The machines have no network, where a shared
-# id could matter.
 # No display manager, no graphical session: the appliance owns the outputs.
 chroot "$root" systemctl set-default multi-user.target >/dev/null 2>&1 || fail "cannot set the default target"
 printf 'IMAGE_ID=restage\nIMAGE_VERSION=%s\n' "$version" >> "$root/usr/lib/os-release"

@@ -12,6 +12,8 @@
 # Needs mtools, e2fsprogs, util-linux (partx); no loop devices, no root.
 set -euo pipefail
 fail() { echo "provision.sh: $*" >&2; exit 1; }
+# shellcheck source=tools/image/uuid.sh
+. "$(dirname "$0")/uuid.sh"
 img="${1:-}"; [ -f "$img" ] || fail "usage: provision.sh IMAGE [--data DIR] [--kernel-args ARGS] (no image at '$img')"
 shift
 data=""; args=""
@@ -32,7 +34,7 @@ if [ -n "$data" ]; then
     read -r start sectors <<<"$(part_of restage-data)"
     # mkfs writes the file system straight into the partition's byte range, filled from DIR.
     mkfs.ext4 -q -F -L restage-data -E offset=$(( start * 512 )) -d "$data" \
-        -U "$(printf 'restage-data %s' "$(basename "$img")" | sha256sum | sed -E 's/^(.{8})(.{4}).(.{3}).(.{3})(.{12}).*/\1-\2-4\3-8\4-\5/')" \
+        -U "$(uuid "restage-data $(basename "$img")")" \
         "$img" $(( sectors / 2 ))k || fail "mkfs.ext4 of the data partition failed"
     echo "provision.sh: data partition of $img from $data"
 fi
