@@ -6,8 +6,10 @@
 //! no login prompt; the emulated firmware's own screen is told apart and timed); then the
 //! original scene, the restoration after a serial PRESS, the original after the exposure
 //! timer. The service console on the first serial port is used as staff would: it reports a
-//! read-only squashfs root from slot A, the data partition at /var, the appliance active, a
-//! persistent journal and the hardware watchdog armed. Then image updates from a second disk
+//! read-only squashfs root from slot A, the data partition at /var grown to the disk's end, the
+//! appliance active, a persistent journal and the hardware watchdog armed. Then a USB stick
+//! plugged in through QMP: its new bundle installed and shown, its tampered one refused; pulled
+//! out, unmounted. Then image updates from a second disk
 //! (a stick): an unsigned and a corrupt one refused with nothing written, a signed one whose
 //! appliance cannot start tried once and rolled back to v1 by the machine itself, a good one
 //! booted, marked good, with the ledger's rows intact. Prints the figures.
@@ -31,6 +33,8 @@ use restage_shared::keys::{SigningKey, public_key_to_pem, signing_key_from_seed}
 
 /// Length of a showing (the exposure timer), seconds.
 const SHOWING_S: u32 = 3;
+/// How much larger than the image the emulated machine's disk is.
+const GROWN: u64 = 1 << 30;
 /// OVMF as Debian's `ovmf` package installs it.
 const OVMF_CODE: &str = "/usr/share/OVMF/OVMF_CODE_4M.fd";
 const OVMF_VARS: &str = "/usr/share/OVMF/OVMF_VARS_4M.fd";
@@ -129,6 +133,10 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
         .arg("--data")
         .arg(d.join("data"))
         .args(["--kernel-args", &format!("{} systemd.journald.forward_to_console=1", video.join(" "))]));
+    // Written to a disk larger than the image, as every stage machine's is: the data partition
+    // takes the rest at first boot.
+    let image_len = std::fs::metadata(&disk).unwrap().len();
+    std::fs::OpenOptions::new().write(true).open(&disk).unwrap().set_len(image_len + GROWN).unwrap();
     let stick = d.join("stick.img");
     let (new_spec, new_version) = bundle_stick(&d.join("stick"), &stick);
     let updates = d.join("updates.img");
@@ -277,6 +285,20 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
     ] {
         assert!(report.contains(&want), "service console report lacks {want:?}: {report}");
     }
+
+    let var_mib: u64 = report
+        .split_once("var_mib=")
+        .and_then(|(_, r)| r.split_whitespace().next()?.parse().ok())
+        .unwrap_or_else(|| panic!("no /var size in the report: {report}"));
+    assert!(
+        var_mib > 512 + (GROWN >> 20) * 9 / 10,
+        "/var is {var_mib} MiB: the data partition (512 MiB in the image) did not take the disk's extra {} MiB",
+        GROWN >> 20
+    );
+    eprintln!(
+        "the data partition's file system after the first boot: {var_mib} MiB (512 MiB in the image, disk {} MiB larger)",
+        GROWN >> 20
+    );
 
     // The bundle inbox: an operator plugs in a USB stick holding a new signed bundle and a
     // tampered one. The new one is installed between showings and plays from the next press;
@@ -505,6 +527,7 @@ fn machine_report(con: &mut qemu_common::Console) -> String {
          app=$(systemctl is-active restage-appliance) journals=$(ls -d /var/log/journal/*/ | wc -l) \
          watchdog=$(cat /sys/class/watchdog/watchdog0/state) gettys=$(systemctl list-units --no-legend 'getty@*' 'autovt@*' | wc -l) \
          config=$(readlink /etc/restage) trust=$(ls /etc/restage/trust) \
+         var_mib=$(df -m --output=size /var | tail -n1 | tr -d ' ') \
          slot=$(tr ' ' '\\n' < /proc/cmdline | sed -n 's/^restage.slot=//p') \
          entries=$(ls /efi/loader/entries | tr '\\n' .) end",
     )
