@@ -14,7 +14,7 @@ use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use ed25519_dalek::{Signature, Signer};
-use restage_shared::keys::{SigningKey, TrustStore};
+use restage_shared::keys::{SigningKey, TrustStore, from_hex, to_hex};
 use serde::{Deserialize, Serialize};
 
 /// The manifest's file name in an update folder.
@@ -150,8 +150,7 @@ pub fn sign(dir: &Path, version: &str, key: &SigningKey) -> Result<Manifest> {
     std::fs::write(&path, &text).map_err(io(&path))?;
     let signature = key.sign(&[DOMAIN, text.as_bytes()].concat());
     let sig_path = dir.join(SIGNATURE);
-    let hex: String = signature.to_bytes().iter().map(|b| format!("{b:02x}")).collect();
-    std::fs::write(&sig_path, hex + "\n").map_err(io(&sig_path))?;
+    std::fs::write(&sig_path, to_hex(&signature.to_bytes()) + "\n").map_err(io(&sig_path))?;
     Ok(manifest)
 }
 
@@ -163,14 +162,7 @@ pub fn verify(dir: &Path, trust: &TrustStore, trust_dir: &Path) -> Result<Manife
     let sig_path = dir.join(SIGNATURE);
     let sig_text = std::fs::read_to_string(&sig_path).map_err(io(&sig_path))?;
     let bad_sig = || UpdateError::Signature { path: sig_path.clone(), trust: trust_dir.into() };
-    let sig_text = sig_text.trim();
-    if sig_text.len() != 128 || !sig_text.is_ascii() {
-        return Err(bad_sig());
-    }
-    let mut bytes = [0u8; 64];
-    for (i, b) in bytes.iter_mut().enumerate() {
-        *b = u8::from_str_radix(&sig_text[2 * i..2 * i + 2], 16).map_err(|_| bad_sig())?;
-    }
+    let bytes = from_hex::<64>(sig_text.trim()).ok_or_else(bad_sig)?;
     let signature = Signature::from_bytes(&bytes);
     let signed = [DOMAIN, &text].concat();
     let trusted =

@@ -58,10 +58,7 @@ impl KeyId {
 
 impl fmt::Display for KeyId {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        for b in self.0 {
-            write!(f, "{b:02x}")?;
-        }
-        Ok(())
+        f.write_str(&to_hex(&self.0))
     }
 }
 
@@ -74,16 +71,26 @@ impl fmt::Debug for KeyId {
 impl FromStr for KeyId {
     type Err = KeyError;
     fn from_str(s: &str) -> Result<Self, KeyError> {
-        let bad = || KeyError::BadKeyId { text: s.to_owned() };
-        if s.len() != KEY_ID_LEN * 2 || !s.is_ascii() {
-            return Err(bad());
-        }
-        let mut id = [0u8; KEY_ID_LEN];
-        for (i, b) in id.iter_mut().enumerate() {
-            *b = u8::from_str_radix(&s[2 * i..2 * i + 2], 16).map_err(|_| bad())?;
-        }
-        Ok(KeyId(id))
+        from_hex(s).map(KeyId).ok_or_else(|| KeyError::BadKeyId { text: s.to_owned() })
     }
+}
+
+/// `bytes` as lowercase hex digits (key ids, signatures kept as text).
+pub fn to_hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// Exactly `N` bytes written as `2 * N` hex digits (either case); `None` for anything else.
+pub fn from_hex<const N: usize>(text: &str) -> Option<[u8; N]> {
+    // Digits only: `from_str_radix` alone would also take a sign ("+0").
+    if text.len() != 2 * N || !text.bytes().all(|b| b.is_ascii_hexdigit()) {
+        return None;
+    }
+    let mut out = [0u8; N];
+    for (i, b) in out.iter_mut().enumerate() {
+        *b = u8::from_str_radix(&text[2 * i..2 * i + 2], 16).ok()?;
+    }
+    Some(out)
 }
 
 /// A signing key from 32 secret bytes (the caller draws them from the OS's random source).
@@ -298,6 +305,16 @@ impl TrustStore {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hex_round_trips_and_refuses_what_is_not_exactly_n_bytes() {
+        let bytes = [0x00, 0x7f, 0x80, 0xff, 0x1a];
+        assert_eq!(to_hex(&bytes), "007f80ff1a");
+        assert_eq!(from_hex::<5>("007F80ff1a"), Some(bytes));
+        for bad in ["007f80ff1", "007f80ff1a00", "007f80ff1g", "+07f80ff1a", "007f80ff\u{e9}"] {
+            assert_eq!(from_hex::<5>(bad), None, "{bad:?}");
+        }
+    }
 
     #[test]
     fn the_demo_key_is_the_documented_derivation() {
