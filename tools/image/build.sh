@@ -171,7 +171,7 @@ printf 'timeout 0\nconsole-mode keep\neditor no\nauto-entries no\nauto-firmware 
 "$here/entry.sh" a "$version" "" > "$esp/loader/entries/restage-a.conf"
 find "$esp" -exec touch --date="@$SOURCE_DATE_EPOCH" {} +
 esp_img="$work/esp.img"
-mkfs.vfat -C -F 32 -n ESP -i "$(uuid "$name esp-fs" | cut -c1-8)" "$esp_img" $(( esp_sectors / 2 )) >/dev/null
+mkfs.vfat --invariant -C -F 32 -n ESP -i "$(uuid "$name esp-fs" | cut -c1-8)" "$esp_img" $(( esp_sectors / 2 )) >/dev/null
 MTOOLS_SKIP_CHECK=1 mcopy -s -m -i "$esp_img" "$esp"/* ::/
 dd if="$esp_img" of="$img" bs=512 seek="$esp_start" conv=notrunc,sparse status=none
 dd if="$upd/root.squashfs" of="$img" bs=512 seek="$a_start" conv=notrunc status=none
@@ -182,5 +182,7 @@ data="$work/data"
 mkdir -p "$data/lib/restage-etc/trust" "$data/lib/restage-etc/update-trust"
 cp -a "$root/usr/share/factory/etc/restage/." "$data/lib/restage-etc/"
 [ -z "$update_trust" ] || cp "$update_trust" "$data/lib/restage-etc/update-trust/"
+# mkfs.ext4 -d copies each file's times (the access time too): all at SOURCE_DATE_EPOCH.
+find "$data" -exec touch --no-dereference --date="@$SOURCE_DATE_EPOCH" {} +
 "$here/provision.sh" "$img" --data "$data" >/dev/null
 echo "== $img: $(du -m --apparent-size "$img" | cut -f1) MiB ($(du -m "$img" | cut -f1) MiB used), built in $(( $(date +%s) - t0 )) s"

@@ -33,9 +33,19 @@ part_of() {
 if [ -n "$data" ]; then
     read -r start sectors <<<"$(part_of restage-data)"
     # mkfs writes the file system straight into the partition's byte range, filled from DIR.
-    mkfs.ext4 -q -F -L restage-data -E offset=$(( start * 512 )) -d "$data" \
-        -U "$(uuid "restage-data $(basename "$img")")" \
+    # (Ids from the image's name: the same image and DIR give the same bytes.)
+    mkfs.ext4 -q -F -L restage-data -d "$data" -U "$(uuid "restage-data $(basename "$img")")" \
+        -E offset=$(( start * 512 )),hash_seed="$(uuid "restage-data-hash $(basename "$img")")" \
         "$img" $(( sectors / 2 ))k || fail "mkfs.ext4 of the data partition failed"
+    if [ -n "${SOURCE_DATE_EPOCH:-}" ]; then
+        # A reproducible build (build.sh): mkfs.ext4 -d copies each file's change time, which
+        # no one can set on the source; set it in the new file system instead.
+        errors="$( (cd "$data" && find . -mindepth 1 | sed 's|^\.||' | while read -r p; do
+            echo "sif \"$p\" ctime @$SOURCE_DATE_EPOCH"
+        done; echo "sif / ctime @$SOURCE_DATE_EPOCH") |
+            debugfs -w -f - "$img?offset=$(( start * 512 ))" 2>&1 >/dev/null | grep -v '^debugfs [0-9]' || true)"
+        [ -z "$errors" ] || fail "debugfs could not set the data file system's change times: $errors"
+    fi
     echo "provision.sh: data partition of $img from $data"
 fi
 if [ -n "$args" ]; then
