@@ -22,22 +22,43 @@ pub struct Inbox {
     /// Files finished with that could not be moved away (a read-only stick): not taken again
     /// unless they change.
     done: HashSet<(PathBuf, Stamp)>,
+    /// Why the folder could not be read at the last scan (not "it is not there": no stick in),
+    /// said once in the journal when it starts.
+    problem: Option<String>,
 }
 
 impl Inbox {
     pub fn new(dir: &Path) -> Self {
-        Self { dir: dir.into(), last: HashMap::new(), done: HashSet::new() }
+        Self { dir: dir.into(), last: HashMap::new(), done: HashSet::new(), problem: None }
     }
 
     pub fn dir(&self) -> &Path {
         &self.dir
     }
 
+    /// Why the folder could not be read at the last scan, if it is there but unreadable.
+    pub fn problem(&self) -> Option<&str> {
+        self.problem.as_deref()
+    }
+
     /// Scans the folder at `now_ms` (monotonic); returns the first bundle (by name) that has
-    /// stood unchanged for [`SETTLE_MS`]. A missing or unreadable folder (no stick in) holds
-    /// nothing.
+    /// stood unchanged for [`SETTLE_MS`]. A missing folder (no stick in) holds nothing; one
+    /// that cannot be read holds nothing either, and the journal says why once.
     pub fn next_ready(&mut self, now_ms: u64) -> Option<PathBuf> {
-        let mut now: Vec<(PathBuf, Stamp)> = std::fs::read_dir(&self.dir)
+        let listing = std::fs::read_dir(&self.dir);
+        let problem = match &listing {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                Some(format!("bundle inbox {} cannot be read: {e}", self.dir.display()))
+            }
+            _ => None,
+        };
+        if problem != self.problem {
+            if let Some(p) = &problem {
+                tracing::warn!("{p}");
+            }
+            self.problem = problem;
+        }
+        let mut now: Vec<(PathBuf, Stamp)> = listing
             .map(|entries| {
                 entries
                     .flatten()
@@ -130,6 +151,24 @@ mod tests {
         let mut inbox = Inbox::new(&dir.path().join("stick"));
         assert_eq!(inbox.next_ready(0), None);
         assert_eq!(inbox.next_ready(SETTLE_MS), None);
+        assert_eq!(inbox.problem(), None, "no stick in is not a problem");
+    }
+
+    #[test]
+    fn a_folder_that_cannot_be_read_is_named_and_forgotten_once_readable() {
+        let dir = tempfile::tempdir().unwrap();
+        let at = dir.path().join("stick");
+        // A file where the folder should be (as root, a folder without permissions would
+        // still be readable).
+        std::fs::write(&at, b"").unwrap();
+        let mut inbox = Inbox::new(&at);
+        assert_eq!(inbox.next_ready(0), None);
+        let p = inbox.problem().expect("the problem is kept").to_string();
+        assert!(p.contains("stick") && p.contains("cannot be read"), "{p}");
+        std::fs::remove_file(&at).unwrap();
+        std::fs::create_dir(&at).unwrap();
+        assert_eq!(inbox.next_ready(SETTLE_MS), None);
+        assert_eq!(inbox.problem(), None);
     }
 
     #[test]

@@ -533,7 +533,7 @@ impl App {
             "wall_skew_ms": self.clock.wall_skew_ms(),
             "reload_pending": self.reload.in_flight || self.reload.parked.is_some(),
             "inbox": self.inbox.as_ref().map(|i| serde_json::json!({
-                "dir": i.dir(), "installing": self.inbox_busy,
+                "dir": i.dir(), "installing": self.inbox_busy, "problem": i.problem(),
             })),
             "look": format!("{:?}", self.player.look()),
             "leased_lux": self.player.leased_lux(),
