@@ -157,6 +157,8 @@ pub struct App {
     /// The bundle inbox, if configured, and the file its worker is installing.
     inbox: Option<Inbox>,
     inbox_busy: Option<PathBuf>,
+    /// The last file the inbox finished with, and what became of it (status page, `status`).
+    inbox_last: Option<status::InboxOutcome>,
     /// Inbox installs' outcomes: what was installed, or why the file was refused.
     inbox_tx: mpsc::Sender<Result<String, String>>,
     /// When light is tried again after a ledger fault (monotonic ms).
@@ -375,6 +377,14 @@ impl App {
             Some(Err(e)) => e,
             None => String::new(),
         };
+        self.inbox_last = Some(status::InboxOutcome {
+            at: self.config.local_zone().local_time(now.unix_ms),
+            file: file.display().to_string(),
+            installed: result.is_ok(),
+            detail: match &result {
+                Ok(what) | Err(what) => format!("{what}; {whereto}"),
+            },
+        });
         match result {
             Ok(what) => {
                 let msg = format!("inbox: {} installed: {what}; {whereto}", file.display());
@@ -532,9 +542,7 @@ impl App {
             "ledger_time_ms": now.unix_ms,
             "wall_skew_ms": self.clock.wall_skew_ms(),
             "reload_pending": self.reload.in_flight || self.reload.parked.is_some(),
-            "inbox": self.inbox.as_ref().map(|i| serde_json::json!({
-                "dir": i.dir(), "installing": self.inbox_busy, "problem": i.problem(),
-            })),
+            "inbox": self.inbox_info(),
             "look": format!("{:?}", self.player.look()),
             "leased_lux": self.player.leased_lux(),
             "bundle": show,
@@ -623,6 +631,16 @@ impl App {
         pj.want(Want::Mute(dark_for_a_reason));
     }
 
+    /// The inbox's state as the status page and the control socket's `status` report it.
+    fn inbox_info(&self) -> Option<status::InboxInfo> {
+        self.inbox.as_ref().map(|i| status::InboxInfo {
+            dir: i.dir().display().to_string(),
+            installing: self.inbox_busy.as_ref().map(|f| f.display().to_string()),
+            problem: i.problem().map(str::to_string),
+            last: self.inbox_last.clone(),
+        })
+    }
+
     /// Publishes what the status page shows now.
     fn publish_snapshot(
         &self,
@@ -647,6 +665,7 @@ impl App {
             show: self.player.show().map(|s| s.as_ref()),
             projectors,
             alerts: &alerts,
+            inbox: self.inbox_info(),
         };
         self.snapshot.send_replace(Arc::new(status::snapshot(&parts)));
     }
@@ -968,6 +987,7 @@ pub async fn run_with<S: TimeSource + Clone + 'static>(config: Config, time: S) 
         prepared_tx,
         inbox: inbox_dir.as_deref().map(Inbox::new),
         inbox_busy: None,
+        inbox_last: None,
         inbox_tx,
         ledger_retry_ms: None,
         reported_skew_ms,

@@ -331,6 +331,9 @@ fn the_inbox_refuses_a_tampered_bundle_and_installs_a_whole_one() {
     let v = wait_status(&sock, Duration::from_secs(5), |_| true);
     assert_eq!(v["bundle"]["version"], 3, "the old bundle plays on: {v}");
     assert_eq!(v["inbox"]["dir"], inbox.to_str().unwrap(), "status names the inbox: {v}");
+    let last = &v["inbox"]["last"];
+    assert!(last["installed"] == false && last["file"].as_str().unwrap().ends_with("tampered.bundle"), "{v}");
+    assert!(last["detail"].as_str().unwrap().contains("refused/tampered.bundle"), "says where it went: {v}");
 
     // A slow copy, five pieces two seconds apart: the inbox scans (every 5 s) see it
     // incomplete at least once, and must not take it while it grows.
@@ -344,7 +347,8 @@ fn the_inbox_refuses_a_tampered_bundle_and_installs_a_whole_one() {
         std::thread::sleep(Duration::from_secs(2));
     }
     drop(f);
-    wait_status(&sock, Duration::from_secs(60), |v| v["bundle"]["version"] == 4);
+    let v = wait_status(&sock, Duration::from_secs(60), |v| v["bundle"]["version"] == 4);
+    assert!(v["inbox"]["last"]["installed"] == true, "the last outcome follows: {v}");
     assert!(inbox.join("installed/slow.bundle").exists() && !inbox.join("refused/slow.bundle").exists());
     stop(child);
 

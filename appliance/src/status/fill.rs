@@ -29,6 +29,8 @@ pub struct Parts<'a> {
     pub show: Option<&'a Show>,
     pub projectors: &'a [ProjectorStatus],
     pub alerts: &'a [alerts::Alert],
+    /// The bundle inbox, as the runtime reports it (also in the control socket's `status`).
+    pub inbox: Option<InboxInfo>,
 }
 
 /// The opening hours' answer (`hours::Hours::at`) as the snapshot shows it; always open (no
@@ -157,6 +159,7 @@ pub fn snapshot(p: &Parts<'_>) -> Snapshot {
             })
             .collect(),
         events,
+        inbox: p.inbox.clone(),
     }
 }
 

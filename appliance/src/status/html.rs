@@ -4,7 +4,7 @@
 
 use maud::{DOCTYPE, Markup, PreEscaped, html};
 
-use super::snapshot::{AlertLevel, BudgetInfo, BundleInfo, Power, Snapshot, StateKind, Window};
+use super::snapshot::{AlertLevel, BudgetInfo, BundleInfo, InboxInfo, Power, Snapshot, StateKind, Window};
 
 /// Seconds between the page's own reloads (`<meta http-equiv="refresh">`).
 pub const REFRESH_S: u32 = 10;
@@ -233,6 +233,28 @@ fn bundle(s: &Snapshot) -> Markup {
                 }
                 BundleInfo::Absent { why } => { p.bad { "No bundle: " (why) } }
             }
+            @if let Some(i) = &s.inbox { (inbox(i)) }
+        }
+    }
+}
+
+/// The inbox under the bundle: where it is, what it is doing, what it did last.
+fn inbox(i: &InboxInfo) -> Markup {
+    html! {
+        table.kv {
+            tr { th { "inbox" } td { code { (i.dir) } } }
+            @if let Some(p) = &i.problem { tr { th { "inbox problem" } td.bad { (p) } } }
+            @if let Some(f) = &i.installing { tr { th { "installing" } td { code { (f) } } } }
+            @if let Some(l) = &i.last {
+                tr {
+                    th { "last from inbox" }
+                    td {
+                        @if l.installed { span.ok { "installed" } } @else { span.bad { "REFUSED" } }
+                        " " code { (l.file) } " " span.dim { (l.at) }
+                        div class=[(!l.installed).then_some("bad")] { (l.detail) }
+                    }
+                }
+            }
         }
     }
 }
@@ -447,6 +469,26 @@ mod tests {
         assert!(page.contains("Not known: the appliance is starting"));
         assert!(page.contains("No bundle: the appliance is starting"));
         assert!(page.contains("No projector control configured."));
+    }
+
+    #[test]
+    fn the_inbox_says_what_it_took_last_and_why_it_refused() {
+        let page = render(&Snapshot::example());
+        assert!(page.contains("<code>/media/stick</code>") && page.contains(">installed</span>"), "{page}");
+        let mut s = Snapshot::example();
+        let i = s.inbox.as_mut().unwrap();
+        i.installing = Some("/media/stick/next.bundle".into());
+        i.problem = Some("bundle inbox /media/stick cannot be read: Permission denied".into());
+        let last = i.last.as_mut().unwrap();
+        last.installed = false;
+        last.detail =
+            "section 3: BLAKE3 hash does not match the manifest; moved to /media/stick/refused/x".into();
+        let page = render(&s);
+        assert!(page.contains("REFUSED") && page.contains("BLAKE3 hash does not match"), "{page}");
+        assert!(page.contains(r#"<td class="bad">bundle inbox /media/stick cannot be read"#), "{page}");
+        assert!(page.contains("<code>/media/stick/next.bundle</code>"), "{page}");
+        s.inbox = None;
+        assert!(!render(&s).contains("inbox"), "no inbox configured, none shown");
     }
 
     #[test]

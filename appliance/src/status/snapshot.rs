@@ -28,6 +28,9 @@ pub struct Snapshot {
     pub alerts: Vec<Alert>,
     /// The ledger's recent events, newest first.
     pub events: Vec<Event>,
+    /// The bundle inbox, where one is configured (`inbox_dir`).
+    #[serde(default)]
+    pub inbox: Option<InboxInfo>,
 }
 
 /// The program itself.
@@ -280,6 +283,29 @@ pub struct Event {
     pub detail: String,
 }
 
+/// The bundle inbox (a USB stick's mount point or a watched folder) and what it did last.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InboxInfo {
+    /// The folder watched.
+    pub dir: String,
+    /// The file being verified and installed now.
+    pub installing: Option<String>,
+    /// Why the folder cannot be read, where it is there but unreadable.
+    pub problem: Option<String>,
+    /// The last file taken from it since the appliance started, and what became of it.
+    pub last: Option<InboxOutcome>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct InboxOutcome {
+    /// Local time it finished.
+    pub at: String,
+    pub file: String,
+    pub installed: bool,
+    /// What was installed, or why it was refused; and where the file was moved.
+    pub detail: String,
+}
+
 impl Snapshot {
     /// What to publish before the event loop's first snapshot: state `Starting`, no figures.
     pub fn starting(version: &str, clock: Clock) -> Snapshot {
@@ -296,6 +322,7 @@ impl Snapshot {
             projectors: Vec::new(),
             alerts: Vec::new(),
             events: Vec::new(),
+            inbox: None,
         }
     }
 
@@ -396,6 +423,18 @@ impl Snapshot {
                 },
                 Event { at: "2026-11-30 18:00:00".into(), kind: "stop".into(), detail: "SIGTERM".into() },
             ],
+            inbox: Some(InboxInfo {
+                dir: "/media/stick".into(),
+                installing: None,
+                problem: None,
+                last: Some(InboxOutcome {
+                    at: "2026-12-01 09:12:40".into(),
+                    file: "/media/stick/retable-v7.bundle".into(),
+                    installed: true,
+                    detail: "retable-st-anne version 7; moved to /media/stick/installed/retable-v7.bundle"
+                        .into(),
+                }),
+            }),
         }
     }
 }
