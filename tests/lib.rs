@@ -18,10 +18,22 @@ pub fn appliance_bin() -> &'static Path {
     BIN.get_or_init(|| build_bin("restage-appliance", "restage-appliance"))
 }
 
+/// Set by `.ci/run`: the binaries beside the test executable were built by the same `cargo test
+/// --workspace` that runs the tests (it builds every package's binaries for their own tests,
+/// with the run's features and profile), so they are used as they are. Without it a `cargo
+/// build` of the one package makes sure they are current; in CI that build was a second,
+/// cold build of each binary's whole dependency tree in another profile (minutes on 2 cores).
+pub const BINS_PREBUILT_ENV: &str = "RESTAGE_BINS_PREBUILT";
+
 fn build_bin(package: &str, bin: &str) -> PathBuf {
     // The test executable lives in target/<profile>/deps/.
     let exe = std::env::current_exe().expect("test executable path");
     let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile>/deps layout");
+    let path = profile_dir.join(format!("{bin}{}", std::env::consts::EXE_SUFFIX));
+    if std::env::var_os(BINS_PREBUILT_ENV).is_some_and(|v| v == "1") {
+        assert!(path.is_file(), "{BINS_PREBUILT_ENV}=1 but {} was not built", path.display());
+        return path;
+    }
     let release = profile_dir.file_name().is_some_and(|n| n == "release");
     let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
     let mut cmd = Command::new(cargo);
@@ -31,7 +43,6 @@ fn build_bin(package: &str, bin: &str) -> PathBuf {
     }
     let status = cmd.status().expect("cargo runs");
     assert!(status.success(), "building {bin} failed");
-    let path = profile_dir.join(format!("{bin}{}", std::env::consts::EXE_SUFFIX));
     assert!(path.is_file(), "{} was not built", path.display());
     path
 }
