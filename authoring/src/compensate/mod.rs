@@ -249,6 +249,86 @@ pub struct Stats {
     /// rounds were asked for).
     #[serde(default)]
     pub refinement: Option<footprint::Refinement>,
+    /// The pixels the target asks to light that stay without light, and why.
+    #[serde(default)]
+    pub unlit: Unlit,
+}
+
+/// The pixels the target asks to light (a finite target: inside the object mask where one
+/// is given, [`mask_target`]) that compensation cannot work on ([`work_points`]), by why:
+/// what a conservator reads before trusting the view, and what no projector reaches named
+/// as such. `asked - total()` is `Stats::covered_points`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Unlit {
+    /// Pixels the target asks to light.
+    pub asked: usize,
+    /// Of them, where calibration reconstructed no surface (typically the silhouette's rim).
+    pub no_surface: usize,
+    /// A known surface point no projector's measured correspondence reaches (shadowed,
+    /// facing away, outside every projector's image).
+    pub no_projector: usize,
+    /// Reached, but calibration measured no reflectance (gain) there.
+    pub no_gain: usize,
+}
+
+impl Unlit {
+    /// Counts the asked pixels of `target` compensation cannot work on, by their first reason
+    /// in the order of the fields.
+    pub fn count(stage: &StageModel, geom: &Geometry, target: &LinearImage) -> Unlit {
+        let mut u = Unlit::default();
+        for (i, t) in target.data.iter().enumerate() {
+            if !t.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            u.asked += 1;
+            let reason = if !stage.points.get(i).is_some_and(|p| p.iter().all(|v| v.is_finite())) {
+                &mut u.no_surface
+            } else if !geom.covered(i) {
+                &mut u.no_projector
+            } else if !stage.gain.get(i).is_some_and(|g| g.iter().all(|g| g.is_finite() && *g > 0.0)) {
+                &mut u.no_gain
+            } else {
+                continue;
+            };
+            *reason += 1;
+        }
+        u
+    }
+
+    pub fn total(&self) -> usize {
+        self.no_surface + self.no_projector + self.no_gain
+    }
+
+    /// Share of the asked pixels that are lit (1 where none were asked).
+    pub fn lit_share(&self) -> f64 {
+        if self.asked == 0 { 1.0 } else { 1.0 - self.total() as f64 / self.asked as f64 }
+    }
+}
+
+impl std::fmt::Display for Unlit {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} of {} px lit ({:.2} %)",
+            self.asked - self.total(),
+            self.asked,
+            100.0 * self.lit_share()
+        )?;
+        let parts: Vec<String> = [
+            (self.no_surface, "no surface reconstructed"),
+            (self.no_projector, "no projector reaches"),
+            (self.no_gain, "no reflectance measured"),
+        ]
+        .iter()
+        .filter(|(n, _)| *n > 0)
+        .map(|(n, why)| format!("{n} {why}"))
+        .collect();
+        if !parts.is_empty() {
+            write!(f, "; unlit: {}", parts.join(", "))?;
+        }
+        Ok(())
+    }
 }
 
 /// The result: frames and what is needed to report on them.
@@ -408,6 +488,7 @@ pub fn compensate_on(
     };
     let refinement = footprint::refine(stage, prep, target, params, &mut draft);
     let Draft { weights, mut frames, scale, covered, by_bound, by_sat } = draft;
+    let unlit = Unlit::count(stage, &prep.geometry, target);
     // Light that would land where the model cannot bound it stays dark.
     let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut frames);
 
@@ -449,6 +530,7 @@ pub fn compensate_on(
         covered,
         by_bound,
         by_sat,
+        %unlit,
         "compensation done"
     );
     Ok(Compensation {
@@ -473,6 +555,7 @@ pub fn compensate_on(
             unseen_dark_pixels: unseen_dark,
             unseen_points: cert.points() - cert.first_unseen,
             refinement,
+            unlit,
         },
     })
 }
@@ -507,7 +590,8 @@ pub fn mask_target(target: &LinearImage, mask: &[bool]) -> Result<LinearImage, C
 }
 
 /// The object points compensation works on (covered, calibrated, finite target: outside an
-/// object mask the target is not finite, [`mask_target`]), in raster order.
+/// object mask the target is not finite, [`mask_target`]), in raster order; [`Unlit`] names
+/// why the others asked for are not.
 pub fn work_points(stage: &StageModel, geom: &Geometry, target: &LinearImage) -> Vec<u32> {
     (0..geom.points as u32)
         .into_par_iter()

@@ -187,6 +187,7 @@ pub fn save(
 <tr><td>certificate points (of them beside unknown surface)</td><td>{cp} ({up})</td></tr>
 <tr><td>pixels kept black: light would land on unknown surface</td><td>{ud}</td></tr>
 <tr><td>footprint refinement</td><td>{refined}</td></tr>
+<tr><td>object pixels the target asks to light</td><td>{unlit}</td></tr>
 </table>
 <h2>Irradiance per unit area (lux)</h2>
 <img src="irradiance.png"><div style="width:560px;height:14px;background:linear-gradient(to right,{grad})"></div>
@@ -215,6 +216,7 @@ pub fn save(
         grad = gradient.join(","),
         half = params.e_bound_lux / 2.0,
         refined = refinement_text(s.refinement.as_ref(), params.footprint_rounds),
+        unlit = s.unlit,
     );
     for k in 0..geom.projectors {
         let _ = write!(

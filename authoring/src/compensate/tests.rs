@@ -207,6 +207,52 @@ fn projector_pixels_lighting_no_object_point_stay_black() {
     }
 }
 
+/// Object pixels without light are counted by why: a hole in the reconstruction, a point no
+/// projector's correspondence reaches, a point without reflectance; outside the mask is not
+/// asked for. The lit ones are exactly the points compensation works on.
+#[test]
+fn unlit_object_pixels_are_named_by_why() {
+    let s = synthetic_stage(2, 3);
+    let p = Params::new(200.0, Exponent::Finite(5.0), 0.05).unwrap();
+    let base = compensate(&s.model, &target(&s, 0), &p).unwrap().stats;
+    let mut model = s.model.clone();
+    let object: Vec<usize> = (0..model.points.len())
+        .filter(|&i| {
+            model.points[i][0].is_finite()
+                && model.correspondences.iter().any(|c| c[i][0].is_finite())
+                && model.gain[i][0] > 0.0
+        })
+        .collect();
+    assert!(object.len() > 200, "{}", object.len());
+    let (holes, unreached, no_gain, unasked) =
+        (&object[0..20], &object[40..55], &object[80..90], &object[120..127]);
+    for &i in holes {
+        model.points[i] = [f32::NAN; 3];
+        model.normals[i] = [f32::NAN; 3];
+    }
+    for &i in unreached {
+        model.correspondences.iter_mut().for_each(|c| c[i] = [f32::NAN; 2]);
+    }
+    for &i in no_gain {
+        model.gain[i] = [0.0; 3];
+    }
+    let mut t = target(&s, 0);
+    for &i in unasked {
+        t.data[i] = [f32::NAN; 3];
+    }
+    let st = compensate(&model, &t, &p).unwrap().stats;
+    let (b, u) = (base.unlit, st.unlit);
+    assert_eq!(u.asked, b.asked - unasked.len());
+    assert_eq!(u.no_surface, b.no_surface + holes.len(), "{u:?} vs {b:?}");
+    assert_eq!(u.no_projector, b.no_projector + unreached.len(), "{u:?} vs {b:?}");
+    assert_eq!(u.no_gain, b.no_gain + no_gain.len(), "{u:?} vs {b:?}");
+    assert_eq!(u.asked - u.total(), st.covered_points);
+    assert_eq!(b.asked - b.total(), base.covered_points);
+    let text = u.to_string();
+    assert!(text.contains(&format!("{} no surface reconstructed", u.no_surface)), "{text}");
+    assert!(text.contains(&format!("{} no projector reaches", u.no_projector)), "{text}");
+}
+
 #[test]
 fn bad_input_is_refused_clearly() {
     let s = synthetic_stage(2, 5);

@@ -80,7 +80,7 @@ impl std::fmt::Display for CompensateSummary {
             f,
             "{} frames in {}: peak {:.2} lx (limit {:.2} lx: E_bound {} lx less the lux meter's \
              accuracy and the margin), scale {:.4}, \
-             limited by bound {:.2} % / saturation {:.2} % of {} points; report: {}",
+             limited by bound {:.2} % / saturation {:.2} % of {} points; object {}; report: {}",
             self.projectors,
             self.out.display(),
             s.peak_lux,
@@ -90,6 +90,7 @@ impl std::fmt::Display for CompensateSummary {
             100.0 * s.limited_by_bound as f64 / s.covered_points as f64,
             100.0 * s.limited_by_saturation as f64 / s.covered_points as f64,
             s.covered_points,
+            s.unlit,
             self.out.join("report/index.html").display()
         )
     }

@@ -22,12 +22,9 @@ impl Page<'_> {
         );
         let _ = writeln!(
             self.html,
-            "<p>In this demo, compensation did not use the calibrated model alone: it used the \
-             virtual stage's true geometry, correspondences, responses and gain with the calibrated \
-             lux scale substituted in ({}; <code>summary.txt</code> says which part is which and \
-             how far the calibrated lux is from the truth). On a real stage it uses the calibrated \
-             model.</p>",
-            file("compensation-stage/")
+            "<p>Compensation used the calibrated stage model ({}), as it would on a real stage; \
+             the light certificate below is computed with it.</p>",
+            file("stage/")
         );
         self.push(
             "<p id=\"assumptions\"><strong>Under which assumptions a certificate holds.</strong> Its \
@@ -119,7 +116,7 @@ impl Page<'_> {
              <tr><th scope=\"row\">limited by the bound</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">limited by projector saturation</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">clip fraction allowed</th><td class=\"n\">{}</td></tr>\
-             <tr><th scope=\"row\">guarantee rounds, pixels dimmed</th><td class=\"n\">{}, {}</td></tr>{}\
+             <tr><th scope=\"row\">guarantee rounds, pixels dimmed</th><td class=\"n\">{}, {}</td></tr>{}{}\
              </tbody></table></div>",
             file(&format!("{}/compensation.json", s.dir)),
             esc(&sm.m),
@@ -139,7 +136,17 @@ impl Page<'_> {
                 r.rounds,
                 pct(r.mismatch_before),
                 pct(r.mismatch_after)
-            ))
+            )),
+            // What the object mask asks to light and what stays dark, by why (absent from
+            // figures written before it was counted).
+            if st.unlit.asked > 0 {
+                format!(
+                    "<tr><th scope=\"row\">object pixels lit, and why the rest are not</th><td>{}</td></tr>",
+                    esc(&st.unlit.to_string())
+                )
+            } else {
+                String::new()
+            }
         );
         // The frames: one panel per projector, each in its own pixel coordinates.
         let parts: Vec<Part> = s

@@ -74,14 +74,8 @@ fn example() -> Inputs {
     }
     let response: [Vec<f32>; 3] =
         std::array::from_fn(|c| (0..256).map(|v| (v as f32 / 255.0).powf(2.0 + c as f32 * 0.1)).collect());
-    let projector = Projector {
-        width: 140,
-        height: 105,
-        black: [0.003; 3],
-        response: response.clone(),
-        used_response: Some(response.map(|r| r.iter().map(|v| v * 0.98).collect())),
-        footprint_scale: Some(7.3),
-    };
+    let projector =
+        Projector { width: 140, height: 105, black: [0.003; 3], response, footprint_scale: Some(7.3) };
     let decode = |k: u32| DecodeQuality {
         projector: k,
         pixels: 480_000,
@@ -252,6 +246,17 @@ fn the_certificate_says_what_was_found_allowed_and_assumed() {
     inp.scenes[0].summary.stats.peak_lux = 143.0;
     let html = render(&inp);
     assert!(html.contains("ABOVE the allowed level"));
+    // What stays dark is named, where the figures count it.
+    assert!(!html.contains("why the rest are not"), "figures without the count show no row");
+    inp.scenes[0].summary.stats.unlit =
+        restage_authoring::compensate::Unlit { asked: 1000, no_surface: 12, no_projector: 3, no_gain: 0 };
+    let html = render(&inp);
+    assert!(
+        html.contains(
+            "985 of 1000 px lit (98.50 %); unlit: 12 no surface reconstructed, 3 no projector reaches"
+        ),
+        "{html}"
+    );
 }
 
 #[test]
