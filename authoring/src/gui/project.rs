@@ -107,7 +107,7 @@ impl Project {
     }
 
     /// Opens `dir`: its `project.toml`, or a folder laid out like the demo's output (a
-    /// `capture/` set and `stage/` or `compensation-stage/`), for which one is written.
+    /// `capture/` set and `stage/`), for which one is written.
     pub fn open(dir: &Path) -> Result<Opened> {
         let dir = std::fs::canonicalize(dir).with_context(|| format!("project folder {}", dir.display()))?;
         let file_path = dir.join(PROJECT_FILE);
@@ -761,13 +761,7 @@ fn from_layout(dir: &Path) -> Result<ProjectFile> {
                 dir.display()
             )
         })?;
-    // The demo compensates with the model it wrote to compensation-stage/ (and says why).
-    let (stage, stage_note) = if dir.join("compensation-stage/stage.bin").is_file() {
-        (
-            Some(PathBuf::from("compensation-stage")),
-            "the demo's compensation model (see summary.txt)".to_string(),
-        )
-    } else if dir.join("stage/stage.bin").is_file() {
+    let (stage, stage_note) = if dir.join("stage/stage.bin").is_file() {
         (Some(PathBuf::from("stage")), "calibrated".to_string())
     } else {
         (None, String::new())

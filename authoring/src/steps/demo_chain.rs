@@ -1,7 +1,7 @@
-//! The demo's chain after simulation: calibrate (or its honest substitute), classify,
-//! restore, relight, compensate three scenes, bundle with a demo key, verify, render what a
-//! visitor sees with the virtual stage's TRUE physics, and write a contact sheet and a
-//! one-screen summary. Every figure in the summary is measured here, never assumed.
+//! The demo's chain after calibration: classify, restore, relight, compensate three scenes on
+//! the calibrated stage model, bundle with a demo key, verify, render what a visitor sees with
+//! the virtual stage's TRUE physics, and write a contact sheet and a one-screen summary. Every
+//! figure in the summary is measured here, never assumed.
 
 use std::path::Path;
 use std::time::Instant;
@@ -11,7 +11,7 @@ use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::classify::{LabelMap, picks_from_labels};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
 use restage_authoring::contact_sheet;
-use restage_authoring::eval::compensate::{TruePhysics, colour_error, true_peak};
+use restage_authoring::eval::compensate::{TruePhysics, colour_error, true_peak, whole_object};
 use restage_authoring::export::{
     BundleDescription, LightDesc, ObjectDesc, PolicyDesc, ProjectorDesc, SceneDesc,
 };
@@ -62,51 +62,43 @@ pub fn run_chain(
     let at = || start.elapsed().as_secs_f64();
     let stage = VirtualStage::new(scene)?;
 
-    // Step 2: calibration. Compensation runs on the TRUE stage model the virtual stage wrote
-    // (geometry, correspondences, responses, gain), with one calibrated part: each projector's lux
-    // scale (`lux_at_1m`) from the simulated lux-meter readings, as `calibrate` fitted it. The
-    // summary says which is which; the visitor view below is rendered with the true physics.
-    let truth_dir = capture_dir.join("ground-truth").join("stage");
-    let mut model =
-        StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    // Step 2: calibration. Everything from here on (mask, relight, compensation, the bundle)
+    // uses the CALIBRATED stage model `calibrate` wrote to stage/, as on a real stage; only the
+    // visitor view is rendered with the virtual stage's true physics, standing in for the real
+    // object under the real projectors. The summary compares the calibrated lux scale with the
+    // truth, which only a virtual stage knows.
     let calibrated_dir = out.join("stage");
-    let calibrated = StageModel::load(&calibrated_dir)
+    let model = StageModel::load(&calibrated_dir)
         .with_context(|| format!("reading the calibrated stage model {}", calibrated_dir.display()))?;
-    let lux_calibrated = calibrated.projectors.len() == model.projectors.len()
-        && calibrated.projectors.iter().all(|p| p.lux_at_1m.is_finite() && p.lux_at_1m > 0.0);
-    let lux_line = if lux_calibrated {
-        let parts: Vec<String> = model
-            .projectors
-            .iter_mut()
-            .zip(&calibrated.projectors)
-            .enumerate()
-            .map(|(k, (t, c))| {
-                let line = format!(
-                    "proj {k} {:.1} (true {:.1}, {:+.2} %)",
-                    c.lux_at_1m,
-                    t.lux_at_1m,
-                    100.0 * (c.lux_at_1m - t.lux_at_1m) / t.lux_at_1m
-                );
-                t.lux_at_1m = c.lux_at_1m;
-                line
-            })
-            .collect();
-        format!("lux scale CALIBRATED from the simulated lux-meter readings, lx at 1 m: {}", parts.join(", "))
-    } else {
-        "lux scale TRUE (the calibrated model has no lux scale)".to_string()
-    };
-    // The model compensation and the bundle use, written so the bundle names what was used.
-    let model_dir = out.join("compensation-stage");
-    model.save(&model_dir).with_context(|| format!("writing {}", model_dir.display()))?;
+    let truth_dir = capture_dir.join("ground-truth").join("stage");
+    let truth = StageModel::load(&truth_dir).with_context(|| format!("reading {}", truth_dir.display()))?;
+    let lux_parts: Vec<String> = model
+        .projectors
+        .iter()
+        .zip(&truth.projectors)
+        .enumerate()
+        .map(|(k, (c, t))| {
+            format!(
+                "proj {k} {:.1} (true {:.1}, {:+.2} %)",
+                c.lux_at_1m,
+                t.lux_at_1m,
+                100.0 * (c.lux_at_1m - t.lux_at_1m) / t.lux_at_1m
+            )
+        })
+        .collect();
     tracing::info!(
-        "compensation model ({}): SUBSTITUTE — geometry, correspondences, responses, vignetting and gain from the TRUE stage model ({}); {lux_line}",
-        model_dir.display(),
-        truth_dir.display()
+        "compensation model: the CALIBRATED stage model ({}); lux scale from the simulated lux-meter readings, lx at 1 m: {}",
+        calibrated_dir.display(),
+        lux_parts.join(", ")
     );
-    log(format!(
-        "              compensation below uses the virtual stage's TRUE model with the {} lux scale",
-        if lux_calibrated { "CALIBRATED" } else { "TRUE" }
-    ));
+    log("              compensation below uses the CALIBRATED stage model (stage/), end to end".to_string());
+    // Demos before 2026-12 compensated on a substitute model written here; in the demo's own
+    // folder it would now only mislead (the report and the interactive tool would not use it).
+    let substitute = out.join("compensation-stage");
+    if substitute.join("stage.bin").is_file() {
+        std::fs::remove_dir_all(&substitute)
+            .with_context(|| format!("removing an earlier demo's {}", substitute.display()))?;
+    }
 
     // Step 3: classify the photo. A conservator's colour picks are stood in for by pixels
     // drawn from the ground-truth label map of the deteriorated object.
@@ -122,7 +114,7 @@ pub fn run_chain(
     // pixels (the summary gives the figure); otherwise the ground truth, and the summary says so.
     let mask_path = classify_dir.join("object_mask.png");
     let truth_mask: Vec<bool> = stage.pixels().iter().map(|p| p.is_object()).collect();
-    let (object_mask, mask_line) = demo_mask(&calibrated, &truth_mask, &out.join("mask"))?;
+    let (object_mask, mask_line) = demo_mask(&model, &truth_mask, &out.join("mask"))?;
     restage_authoring::segment::save_mask(&mask_path, cam.width, cam.height, &object_mask)?;
     tracing::info!("step 3 mask: {mask_line}");
     log(format!("3 mask        {mask_line}"));
@@ -214,23 +206,28 @@ pub fn run_chain(
         // Step 9 (per scene): what a visitor sees, rendered with the TRUE physics.
         let view = TruePhysics::view(&stage, &comp.frames);
         let (de_mean, de_p95, n) = colour_error(&comp, &view, &target);
+        let (_, de_object, object_px) = whole_object(&comp, &view, &target);
         let tp = true_peak(&stage, &comp.frames);
         let s = &comp.stats;
         tracing::info!(
             "step 6 compensate {id:<8} ({:.1} s): certificate peak {:.1} lx, TRUE peak {:.1} lx (E_bound {E_BOUND_LUX} lx); \
-             visitor view vs target CIEDE2000 mean {de_mean:.2}, p95 {de_p95:.2} over {n} px; limited by bound {:.2} %",
+             visitor view vs target CIEDE2000 mean {de_mean:.2}, p95 {de_p95:.2} over {n} lit px, \
+             {de_object:.2} over all {object_px} px of the mask; mask {}; limited by bound {:.2} %",
             at(),
             s.peak_lux,
             tp,
+            s.unlit,
             100.0 * s.limited_by_bound as f64 / s.covered_points.max(1) as f64
         );
         log(format!(
             "6 compensate  {id:<8} brightest point {:.1} lx, allowed {:.1} (bound {E_BOUND_LUX} lx less \
-             {:.0} % lux-meter accuracy and {:.0} % margin), truly {tp:.1}; colour difference {de_mean:.1} ΔE00",
+             {:.0} % lux-meter accuracy and {:.0} % margin), truly {tp:.1}; lit {:.2} % of the mask; \
+             colour difference {de_mean:.1} ΔE00 where lit, {de_object:.1} over the whole mask",
             s.peak_lux,
             s.limit_lux,
             100.0 * params.meter_accuracy,
-            100.0 * params.margin
+            100.0 * params.margin,
+            100.0 * s.unlit.lit_share()
         ));
         let img = LinearImage {
             width: cam.width,
@@ -264,7 +261,7 @@ pub fn run_chain(
     let room = prep.certificate.ambient_lux;
     let desc = BundleDescription {
         version: 1,
-        stage: model_dir.clone(),
+        stage: calibrated_dir.clone(),
         certificate: comp_dir.join(compensate::io::CERTIFICATE_FILE),
         valid_days: Some(365),
         not_before_unix_s: None,

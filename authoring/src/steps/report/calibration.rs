@@ -305,7 +305,6 @@ impl Page<'_> {
         self.push("<figure><div class=\"panels\">");
         const CHANNELS: [(&str, [u8; 3]); 3] =
             [("red", [190, 30, 30]), ("green", [20, 130, 40]), ("blue", [30, 60, 200])];
-        let mut any_used = false;
         for (k, p) in self.inp.projectors.clone().iter().enumerate() {
             let mut series = Vec::new();
             for (c, (name, colour)) in CHANNELS.iter().enumerate() {
@@ -317,15 +316,6 @@ impl Page<'_> {
                     dashed: false,
                     points: curve(&p.response[c]),
                 });
-                if let Some(used) = &p.used_response {
-                    any_used = true;
-                    series.push(Series {
-                        label: format!("{name}, used by compensation"),
-                        colour: *colour,
-                        dashed: true,
-                        points: curve(&used[c]),
-                    });
-                }
             }
             let id = self.id("plot");
             let plot = Plot {
@@ -347,18 +337,11 @@ impl Page<'_> {
             .filter(|r| self.inp.pictures.contains_key(r))
             .map(|r| file(&r))
             .collect();
-        let used = if any_used {
-            " Dashed: the responses of the model compensation used (in this demo the virtual \
-             stage's true ones, see <a href=\"#compensate\">Compensation</a>), so the gap between \
-             solid and dashed is the calibration's error."
-        } else {
-            ""
-        };
         let _ = writeln!(
             self.html,
             "</div><figcaption>Each projector's light output for each 8-bit input value, per colour \
              channel, relative to its output at 255 above black (0 = black level, 1 = full). Solid: \
-             as calibrated from the gray ramps (<code>stage/stage.bin</code>).{used} The calibration's \
+             as calibrated from the gray ramps (<code>stage/stage.bin</code>). The calibration's \
              own plots, with the measured levels as squares: {}.</figcaption></figure>",
             if pngs.is_empty() { "none written".to_string() } else { pngs.join(", ") }
         );

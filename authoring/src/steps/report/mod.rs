@@ -69,12 +69,6 @@ pub fn gather(out: &Path) -> Result<Inputs> {
     }
     if stage.join("stage.bin").exists() {
         let model = StageModel::load(&stage).with_context(|| format!("reading {}", stage.display()))?;
-        let used = out.join("compensation-stage");
-        let used = if used.join("stage.bin").exists() {
-            Some(StageModel::load(&used).with_context(|| format!("reading {}", used.display()))?)
-        } else {
-            None
-        };
         inp.depth_mm = depth_range(&model.points);
         inp.projectors = model
             .projectors
@@ -87,11 +81,6 @@ pub fn gather(out: &Path) -> Result<Inputs> {
                     height: p.height,
                     black: p.black,
                     response: p.response.clone(),
-                    used_response: used
-                        .as_ref()
-                        .and_then(|u| u.projectors.get(k))
-                        .map(|u| u.response.clone())
-                        .filter(|r| *r != p.response),
                     footprint_scale: energy
                         .filter(|e| e.iter().any(|v| v.is_finite()))
                         .map(|e| footprint_scale(&e)),

@@ -50,9 +50,6 @@ pub struct Projector {
     pub black: [f32; 3],
     /// Relative output per 8-bit input, red, green, blue.
     pub response: [Vec<f32>; 3],
-    /// The responses of the model compensation used, when it is another one
-    /// (`compensation-stage/`).
-    pub used_response: Option<[Vec<f32>; 3]>,
     /// The footprint map's full scale ([`footprint_scale`] of the stage model's transport).
     ///
     /// [`footprint_scale`]: restage_authoring::calibrate::photometric::footprint_scale
@@ -666,7 +663,6 @@ fn what_is(name: &str) -> &'static str {
         "capture" => "the capture set: 16-bit camera images of every pattern, and the virtual stage's truth",
         "capture_contact_sheet.png" => "the capture at a glance",
         "stage" => "the calibrated stage model and its reports",
-        "compensation-stage" => "the stage model compensation and the bundle used (demo substitute)",
         "classify" => "colour picks, palette and label map",
         "restore" => "the restored labels and image",
         "relit.png" => "the relit variant",
