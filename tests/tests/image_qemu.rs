@@ -8,8 +8,9 @@
 //! timer. The service console on the first serial port is used as staff would: it reports a
 //! read-only squashfs root from slot A, the data partition at /var grown to the disk's end, the
 //! appliance active, a persistent journal and the hardware watchdog armed. Then a USB stick
-//! plugged in through QMP: its new bundle installed and shown, its tampered one refused; pulled
-//! out, unmounted. Then image updates from a second disk
+//! plugged in through QMP: its new bundle installed and shown, its tampered one refused; a
+//! second stick beside it refused by name, the first left mounted; pulled out, unmounted; a
+//! stick with a file system the stage does not take refused by name. Then image updates from a second disk
 //! (a stick): an unsigned and a corrupt one refused with nothing written, a signed one whose
 //! appliance cannot start tried once and rolled back to v1 by the machine itself, a good one
 //! booted, marked good, with the ledger's rows intact. Prints the figures.
@@ -139,6 +140,14 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
     std::fs::OpenOptions::new().write(true).open(&disk).unwrap().set_len(image_len + GROWN).unwrap();
     let stick = d.join("stick.img");
     let (new_spec, new_version) = bundle_stick(&d.join("stick"), &stick);
+    // A second FAT stick (plugged in while the first is in) and one with a file system the
+    // stage does not mount.
+    let second = d.join("second.img");
+    run(Command::new("mkfs.vfat").args(["-C", "-n", "SECOND"]).arg(&second).arg("4096"));
+    let odd = d.join("odd.img");
+    std::fs::create_dir_all(d.join("odd")).unwrap();
+    std::fs::write(d.join("odd/new.bundle"), b"not looked at").unwrap();
+    run(Command::new("mksquashfs").arg(d.join("odd")).arg(&odd).args(["-noappend", "-quiet"]));
     let updates = d.join("updates.img");
     update_disk(&image.with_extension("update"), &d.join("updates"), &updates);
     let vars = d.join("OVMF_VARS.fd");
@@ -305,10 +314,7 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
     // the tampered one is refused and named in the journal; each is moved on the stick to
     // installed/ or refused/, where the operator sees what became of it.
     let t_stick = Instant::now();
-    qmp.execute(serde_json::json!({"execute": "blockdev-add", "arguments": {
-        "driver": "raw", "node-name": "stick", "file": {"driver": "file", "filename": stick}}}));
-    qmp.execute(serde_json::json!({"execute": "device_add", "arguments": {
-        "driver": "usb-storage", "bus": "xhci.0", "drive": "stick", "id": "stick", "removable": true}}));
+    plug(&mut qmp, "stick", &stick);
     con.wait_for(&["mounted at /media/stick"], Duration::from_secs(60));
     let installed_line =
         con.wait_for(&["inbox: /media/stick/new.bundle installed"], Duration::from_secs(120));
@@ -357,18 +363,40 @@ fn the_image_boots_dark_plays_a_showing_and_serves_its_console() {
     ] {
         assert!(out.contains(&want), "after the stick ({want:?}): {out}");
     }
+    let shown_after = t_stick.elapsed();
+    // A second stick while the first is in: refused by name, the first stays; pulling the
+    // second out leaves the first mounted.
+    let first = shell(&mut con, "findmnt -no SOURCE /media/stick");
+    plug(&mut qmp, "second", &second);
+    con.wait_for(
+        &["not mounted, another stick is at /media/stick", "take that one out first"],
+        Duration::from_secs(60),
+    );
+    unplug(&mut qmp, "second");
+    std::thread::sleep(Duration::from_secs(2));
+    let out = shell(&mut con, "findmnt -no SOURCE /media/stick; echo mounted=$?");
+    assert!(
+        out.contains(first.trim()) && out.contains("mounted=0"),
+        "the first stick ({first}) after the second: {out}"
+    );
     // Pulled out: unmounted at once, and the inbox holds nothing.
-    qmp.execute(serde_json::json!({"execute": "device_del", "arguments": {"id": "stick"}}));
+    unplug(&mut qmp, "stick");
     con.wait_for(&["unmounted from /media/stick"], Duration::from_secs(60));
     let out = shell(&mut con, "findmnt -n /media/stick; echo mounted=$?");
     assert!(
         out.contains("mounted=1"),
         "the stick's file system is still mounted after it was pulled out: {out}"
     );
+    // A file system the stage does not take (squashfs here; NTFS likewise) is refused by name.
+    plug(&mut qmp, "odd", &odd);
+    con.wait_for(&["a squashfs file system; a stick must be FAT, exFAT or ext4"], Duration::from_secs(60));
+    let out = shell(&mut con, "findmnt -n /media/stick; echo mounted=$?");
+    assert!(out.contains("mounted=1"), "a squashfs stick was mounted: {out}");
+    unplug(&mut qmp, "odd");
     eprintln!(
         "FIGURES (bundle inbox, emulated machine): stick plugged in to the new bundle installed {:.1} s (settling 4 s, verified, copied, verified again); to its showing and the tampered one refused {:.1} s",
         installed_after.as_secs_f64(),
-        t_stick.elapsed().as_secs_f64()
+        shown_after.as_secs_f64()
     );
     // The ledger as it stands: the update must keep every row. The last row may be the
     // exposure under way (the idle scene is light too), which grows until it ends: the rows
@@ -505,6 +533,20 @@ fn bundle_stick(work: &Path, disk: &Path) -> (ExampleSpec, u64) {
     run(Command::new("mcopy").arg("-i").arg(disk).arg(work.join("new.bundle")).arg(&tampered).arg("::/"));
     let version = new.version;
     (new, version)
+}
+
+/// Plugs a USB stick whose disk is the file `disk` into the machine's xHCI controller, as
+/// QMP device `id`.
+fn plug(qmp: &mut qemu_common::Qmp, id: &str, disk: &Path) {
+    qmp.execute(serde_json::json!({"execute": "blockdev-add", "arguments": {
+        "driver": "raw", "node-name": id, "file": {"driver": "file", "filename": disk}}}));
+    qmp.execute(serde_json::json!({"execute": "device_add", "arguments": {
+        "driver": "usb-storage", "bus": "xhci.0", "drive": id, "id": id, "removable": true}}));
+}
+
+/// Pulls the stick `id` out.
+fn unplug(qmp: &mut qemu_common::Qmp, id: &str) {
+    qmp.execute(serde_json::json!({"execute": "device_del", "arguments": {"id": id}}));
 }
 
 /// Runs `cmd` in the service console's shell and returns its output (standard output and
