@@ -4,6 +4,7 @@
 # systemd-boot with boot counting, and a data partition for everything that changes.
 #
 #   tools/image/build.sh OUT_DIR [--version V] [--deb FILE] [--update-key KEY.pem] [--update-trust PUB.pem]
+#                                [--pin PACKAGES]
 #
 # Writes OUT_DIR/restage-V.img (GPT: ESP, restage-root-a, restage-root-b, restage-data; sparse),
 # OUT_DIR/restage-V.update/ (root.squashfs, vmlinuz, initrd: slot A's contents, the update that
@@ -11,7 +12,9 @@
 # `restage-appliance update install` checks against the machine's /etc/restage/update-trust),
 # and OUT_DIR/restage-V.packages (every package and version inside). V defaults to the
 # appliance's version; --deb takes a package built already (else cargo-deb builds one);
-# --update-trust puts a public key into the image's update-trust. Dates come from
+# --update-trust puts a public key into the image's update-trust; --pin rebuilds from an
+# earlier build's restage-V.packages, every package at the version it names (apt must still
+# find those versions: the same archive state, or a snapshot of it). Dates come from
 # SOURCE_DATE_EPOCH (default: the last commit's), so the same commit and the same archive give
 # the same root file system.
 # Needs root and the apt packages of tools/image/host-packages. Downloads go through apt
@@ -23,15 +26,16 @@ fail() { echo "build.sh: $*" >&2; exit 1; }
 # shellcheck source=tools/image/uuid.sh
 . "$here/uuid.sh"
 
-out="${1:-}"; [ -n "$out" ] || fail "usage: build.sh OUT_DIR [--version V] [--deb FILE] [--update-key KEY.pem] [--update-trust PUB.pem]"
+out="${1:-}"; [ -n "$out" ] || fail "usage: build.sh OUT_DIR [--version V] [--deb FILE] [--update-key KEY.pem] [--update-trust PUB.pem] [--pin PACKAGES]"
 shift
-version=""; deb=""; update_key=""; update_trust=""
+version=""; deb=""; update_key=""; update_trust=""; pin=""
 while [ $# -gt 0 ]; do
     case "$1" in
         --version) version="$2"; shift 2 ;;
         --deb) deb="$2"; shift 2 ;;
         --update-key) update_key="$(realpath "$2")"; shift 2 ;;
         --update-trust) update_trust="$(realpath "$2")"; [ -f "$update_trust" ] || fail "no key at $2"; shift 2 ;;
+        --pin) pin="$(realpath "$2")"; [ -f "$pin" ] || fail "no package list at $2"; shift 2 ;;
         *) fail "unknown argument $1" ;;
     esac
 done
@@ -62,12 +66,25 @@ work="$(mktemp -d "$out/.work.XXXXXX")"
 [ "${RESTAGE_IMAGE_KEEP:-}" = 1 ] || trap 'rm -rf "$work"' EXIT
 root="$work/root"
 include="$(grep -v '^\s*#' "$here/packages" | grep -v '^\s*$' | tr '\n' ',')"
+pin_hooks=()
+if [ -n "$pin" ]; then
+    # Every package of the earlier build held at its version by apt preferences (not by
+    # name=version requests, which would mark every dependency as asked for and so change
+    # apt's own records in the image); removed before the root is packed. The appliance
+    # comes from --deb.
+    awk 'NF == 2 && $1 != "restage-appliance" { printf "Package: %s\nPin: version %s\nPin-Priority: 1001\n\n", $1, $2 }' \
+        "$pin" > "$work/pins"
+    [ -s "$work/pins" ] || fail "$pin lists no packages (expected lines \"NAME VERSION\")"
+    pin_hooks=(--setup-hook="mkdir -p \"\$1\"/etc/apt/preferences.d && cp $work/pins \"\$1\"/etc/apt/preferences.d/restage-pins"
+        --customize-hook="rm \"\$1\"/etc/apt/preferences.d/restage-pins")
+fi
 # The package cache is handed in before and taken back after, so a rebuild downloads only what
 # changed (the recipe of mmdebstrap(1), "--skip=essential/unlink").
 mmdebstrap --mode=root --variant=minbase --include="$include" \
     --skip=essential/unlink \
     --setup-hook='mkdir -p "$1"/var/cache/apt/archives/' \
     --setup-hook="sync-in $cache/debs /var/cache/apt/archives/" \
+    "${pin_hooks[@]}" \
     --customize-hook="sync-out /var/cache/apt/archives $cache/debs" \
     --customize-hook="copy-in $deb /tmp" \
     --customize-hook="chroot \"\$1\" dpkg -i /tmp/$(basename "$deb")" \

@@ -9,8 +9,12 @@ root="$1"; version="$2"
 here="$(cd "$(dirname "$0")" && pwd)"
 fail() { echo "customize.sh: $*" >&2; exit 1; }
 
-# The image's own configuration files (tools/image/rootfs).
-cp -a "$here/rootfs/." "$root/"
+# The image's own configuration files (tools/image/rootfs), owned by root and dated
+# SOURCE_DATE_EPOCH: the checkout's owners and times (a clone's are the time of cloning) must
+# not reach the image, nor the initramfs made from it below.
+cp -R --preserve=mode,links "$here/rootfs/." "$root/"
+(cd "$here/rootfs" && find . -mindepth 1 -print0) |
+    (cd "$root" && xargs -0r touch --no-dereference --date="@${SOURCE_DATE_EPOCH:?}")
 kver="$(ls "$root/usr/lib/modules" | sort -V | tail -n1)"
 # The initramfs holds only what finds and mounts the root: the disk controllers of a small
 # PC and of the emulated machine, squashfs and ext4.
