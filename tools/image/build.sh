@@ -92,6 +92,11 @@ mmdebstrap --mode=root --variant=minbase --include="$include" \
     --customize-hook="chroot \"\$1\" dpkg-query -W -f='\${Package} \${Version}\n' > $work/packages" \
     bookworm "$root" >"$work/mmdebstrap.log" 2>&1 || { tail -n 30 "$work/mmdebstrap.log" >&2; fail "mmdebstrap failed"; }
 sort "$work/packages" > "$out/$name.packages"
+# A pin on a version the archive no longer has is passed over by apt: compare, and stop.
+if [ -n "$pin" ] && ! diff <(grep -v '^restage-appliance ' "$pin" | sort) \
+    <(grep -v '^restage-appliance ' "$out/$name.packages") > "$work/pin.diff"; then
+    fail "the image's packages are not those of $pin (versions the archive no longer has?): $(grep '^[<>]' "$work/pin.diff" | head -n 6 | tr '\n' ' ')"
+fi
 echo "== root file system: $(wc -l < "$out/$name.packages") packages ($(( $(date +%s) - t0 )) s)"
 
 # --- What a running appliance never needs (the root was customised inside mmdebstrap by
