@@ -26,7 +26,7 @@ use tracing::{info, warn};
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::kmeans::{Features, Precision, lloyd_metric};
+use super::kmeans::{Features, Precision, lloyd_metric, mahalanobis2};
 use super::weights::{fit_weights, pair_differences};
 use super::{ClassifyError, LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, Picks};
 use crate::color::{D65_XY, SRGB_TO_XYZ, linear_srgb_to_xyy};
@@ -55,6 +55,9 @@ pub struct ClassifyOptions {
     /// paints beside them ([`super::edges`]); on by default. Off: the paper's per-pixel rule
     /// alone (`restage-author eval classify` reports both).
     pub unmix_edges: bool,
+    /// Give regions whose colour runs on without a step into a neighbouring paint that
+    /// paint's class (faded or stained patches, [`super::regions`]); on by default.
+    pub merge_soft: bool,
     /// The loss classes (bare substrate that chips and cracks expose, the restoration's
     /// `loss_classes`), by index into the picks. A crack is a groove one or two pixels wide:
     /// its substrate is in shadow and has no pure pixel to take its colour from, so edge
@@ -65,9 +68,19 @@ pub struct ClassifyOptions {
 
 impl Default for ClassifyOptions {
     fn default() -> Self {
-        Self { max_iterations: 1, prior_picks: DEFAULT_PRIOR_PICKS, unmix_edges: true, loss: Vec::new() }
+        Self {
+            max_iterations: 1,
+            prior_picks: DEFAULT_PRIOR_PICKS,
+            unmix_edges: true,
+            merge_soft: true,
+            loss: Vec::new(),
+        }
     }
 }
+
+/// 99 % point of chi-square with 3 degrees of freedom: a pixel nearer its class than this
+/// (squared Mahalanobis distance) looks like that class's picks.
+const TYPICAL_CHI2: f32 = 11.34;
 
 /// Default [`ClassifyOptions::prior_picks`].
 pub const DEFAULT_PRIOR_PICKS: f64 = 3.0;
@@ -267,6 +280,22 @@ pub fn classify(
     }
     let mut labels = initial_labels(photo.data.len(), mask)?;
     let mut res = lloyd_metric(&features, &init, Some(&metrics), &mut labels, opts.max_iterations);
+    if opts.merge_soft {
+        // Pixels within the spread of their class's picks (squared Mahalanobis distance
+        // under the 99 % point of chi-square with 3 degrees of freedom).
+        let typical: Vec<bool> = labels
+            .iter()
+            .enumerate()
+            .map(|(i, &l)| {
+                metrics.get(l as usize).is_some_and(|p| {
+                    mahalanobis2(features.get(i), res.centroids[l as usize], p) < TYPICAL_CHI2
+                })
+            })
+            .collect();
+        let changed =
+            super::regions::merge_soft_regions(photo, &mut labels, k, &reps_rgb, &idx, &typical, &opts.loss);
+        info!(changed, "relabelled faded or stained regions");
+    }
     if opts.unmix_edges {
         let changed = super::edges::unmix_edges(photo, &mut labels, mask, k, &opts.loss);
         info!(changed, "relabelled mixed edge pixels");

@@ -162,6 +162,16 @@ fn nearest(f: [f32; 3], cc: &[f32], c2: &[[f32; 3]]) -> u8 {
     best
 }
 
+/// Squared Mahalanobis distance `(f - c)^T P (f - c)` under a packed precision.
+#[inline(always)]
+pub fn mahalanobis2(f: [f32; 3], c: [f32; 3], p: &Precision) -> f32 {
+    let d = [f[0] - c[0], f[1] - c[1], f[2] - c[2]];
+    p[0] * d[0] * d[0]
+        + p[1] * d[1] * d[1]
+        + p[2] * d[2] * d[2]
+        + 2.0 * (p[3] * d[0] * d[1] + p[4] * d[0] * d[2] + p[5] * d[1] * d[2])
+}
+
 /// [`assign`] under per-cluster metrics: argmin over clusters of `(f - c)^T P (f - c)`; ties
 /// go to the lower index.
 fn assign_metric(
@@ -176,11 +186,7 @@ fn assign_metric(
         let mut best = 0u8;
         let mut best_d = f32::INFINITY;
         for (j, (c, p)) in cm.iter().enumerate() {
-            let d = [f[0] - c[0], f[1] - c[1], f[2] - c[2]];
-            let v = p[0] * d[0] * d[0]
-                + p[1] * d[1] * d[1]
-                + p[2] * d[2] * d[2]
-                + 2.0 * (p[3] * d[0] * d[1] + p[4] * d[0] * d[2] + p[5] * d[1] * d[2]);
+            let v = mahalanobis2(f, *c, p);
             if v < best_d {
                 best_d = v;
                 best = j as u8;

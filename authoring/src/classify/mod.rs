@@ -11,6 +11,7 @@ mod error;
 pub mod kmeans;
 mod palette;
 pub mod picks;
+pub mod regions;
 pub mod synthetic;
 pub mod weights;
 

@@ -55,6 +55,8 @@ pub struct PhotoEval {
     pub edge_accuracy: [f64; 2],
     /// Ours with picks from each of [`PICK_SEEDS`] seeds (the first is `ours`).
     pub ours_by_pick_seed: Vec<(u64, f64)>,
+    /// The same without relabelling faded or stained regions ([`crate::classify::regions`]).
+    pub ours_by_pick_seed_no_soft: Vec<(u64, f64)>,
     pub baselines: Vec<MethodScore>,
     /// Our labels, in truth class indices (255 off the object).
     pub ours_labels: LabelMap,
@@ -189,10 +191,16 @@ pub fn evaluate_photo(
     };
     let edge_accuracy = [on_edges(&ours.labels.data), on_edges(&pp.labels.data)];
     let mut ours_by_pick_seed = vec![(seed, ours_score.accuracy)];
-    for s in seed + 1..seed + PICK_SEEDS {
+    let mut ours_by_pick_seed_no_soft = Vec::new();
+    let no_soft = ClassifyOptions { merge_soft: false, ..opts.clone() };
+    for s in seed..seed + PICK_SEEDS {
         let p = picks_from_labels(&dense, &pnames, &pdisplay, PICKS_PER_CLASS, s)?;
-        let o = classify(photo, &p, Some(&mask), &opts)?;
-        ours_by_pick_seed.push((s, score("", &dense, &o.labels.data, k, 0.0).accuracy));
+        if s > seed {
+            let o = classify(photo, &p, Some(&mask), &opts)?;
+            ours_by_pick_seed.push((s, score("", &dense, &o.labels.data, k, 0.0).accuracy));
+        }
+        let o = classify(photo, &p, Some(&mask), &no_soft)?;
+        ours_by_pick_seed_no_soft.push((s, score("", &dense, &o.labels.data, k, 0.0).accuracy));
     }
 
     let mut baselines = Vec::new();
@@ -224,6 +232,7 @@ pub fn evaluate_photo(
         edge_pixels: edges.len() as u64,
         edge_accuracy,
         ours_by_pick_seed,
+        ours_by_pick_seed_no_soft,
         baselines,
         ours_labels,
         dense_truth: dense,
@@ -264,6 +273,24 @@ pub fn metrics(e: &PhotoEval) -> Vec<Metric> {
         "%",
         TARGET_ACCURACY * 100.0,
     ));
+    let no_soft = &e.ours_by_pick_seed_no_soft;
+    if let Some(first) = no_soft.first() {
+        out.push(Metric::info(
+            step,
+            &format!("{} accuracy, ours without relabelling faded or stained regions", e.label),
+            first.1 * 100.0,
+            "%",
+        ));
+        out.push(Metric::info(
+            step,
+            &format!(
+                "{} accuracy, ours without relabelling faded or stained regions, worst of pick seeds",
+                e.label
+            ),
+            no_soft.iter().map(|p| p.1).fold(f64::INFINITY, f64::min) * 100.0,
+            "%",
+        ));
+    }
     out.push(Metric::info(
         step,
         &format!("{} accuracy, ours with the plain Eq. 1 distance", e.label),

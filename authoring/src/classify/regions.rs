@@ -1,0 +1,386 @@
+//! Deterioration is smooth, paint edges are sharp: a region that the per-pixel rule gave one
+//! class but whose colour runs on without a step into a neighbouring region of another class
+//! is that neighbour's paint, faded or stained (the Retinex observation: reflectance changes
+//! in steps, light and slow alteration change gradually). Fading towards the ground, a stain
+//! or grime move a paint's colour part of the way to another paint's, far outside the spread
+//! of the few pixels a conservator picks, so whole faded patches go to the nearest other
+//! colour; chips and cracks, the losses that must keep their class, have sharp edges.
+//!
+//! Each connected region (4-neighbours, one class) is compared with each neighbouring region
+//! of another class across their shared border: the colour step from one pixel inside to one
+//! pixel outside (skipping past the border pixels themselves, which may be mixed) relative to
+//! the contrast between the two classes' colours. Where the median step is a small share of
+//! the contrast the border is soft, and one region takes the other's class:
+//! - a region holding a pick of its own class (the conservator named it) yields only in
+//!   part: a watershed on colour steps from its picks and its typical pixels on one side and
+//!   the soft border on the other splits it along its sharpest line ([`flood`]);
+//! - a loss class (bare substrate) never spreads over a soft border: a loss has an edge, so a
+//!   loss-coloured region that fades into paint is that paint;
+//! - otherwise the smaller region takes the class of the larger (a faded or stained patch
+//!   lies within the paint it alters).
+//!
+//! Rounds repeat until nothing changes, so a faded patch beside a fainter one joins the
+//! paint through it.
+
+use crate::imgio::LinearImage;
+
+/// A border whose median step is below this share of the classes' contrast is soft.
+pub const SOFT_STEP: f32 = 0.25;
+
+/// Fewest border pixel pairs for a border to be judged (a few pairs are noise).
+const MIN_PAIRS: usize = 6;
+
+/// Most rounds of merging (each round reads the labels as the previous one left them).
+const MAX_ROUNDS: usize = 8;
+
+/// One border between two regions of different classes.
+#[derive(Clone, Debug)]
+pub struct Border {
+    /// The two regions, lower index first.
+    pub regions: [u32; 2],
+    /// Border pixel pairs measured.
+    pub pairs: usize,
+    /// Median colour step across the border over the contrast between the two classes.
+    pub step: f32,
+    /// The pairs whose step is below [`SOFT_STEP`]: (pixel in `regions[0]`, pixel in `regions[1]`).
+    pub soft: Vec<[u32; 2]>,
+}
+
+/// One region: a 4-connected run of one class.
+#[derive(Clone, Debug)]
+pub struct Region {
+    pub class: u8,
+    pub pixels: u32,
+    /// Holds a pick of its own class.
+    pub anchored: bool,
+}
+
+/// Regions and the borders between them.
+#[derive(Clone, Debug)]
+pub struct Regions {
+    /// Region index of every pixel (`u32::MAX` off the object).
+    pub of_pixel: Vec<u32>,
+    pub regions: Vec<Region>,
+    pub borders: Vec<Border>,
+}
+
+/// Relative difference of two linear RGB colours: the L1 distance over the L1 sum, so that
+/// shading (a common factor) cancels.
+fn relative(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d: f64 = (0..3).map(|j| (a[j] - b[j]).abs()).sum();
+    let s: f64 = (0..3).map(|j| a[j].abs() + b[j].abs()).sum();
+    if s > 0.0 { d / s } else { 0.0 }
+}
+
+/// Finds the regions of `labels` (classes `0..k`; anything else is off the object) and
+/// measures every border. `colours`: each class's colour (linear RGB) the contrast is
+/// measured between; `picks[c]`: the pixels picked for class `c`.
+pub fn regions(
+    photo: &LinearImage,
+    labels: &[u8],
+    k: usize,
+    colours: &[[f64; 3]],
+    picks: &[Vec<usize>],
+) -> Regions {
+    let (w, h) = (photo.width as usize, photo.height as usize);
+    let n = labels.len();
+    let on = |i: usize| (labels[i] as usize) < k;
+    // Connected components by union-find with path halving; a root is its set's smallest index.
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn find(p: &mut [u32], mut i: u32) -> u32 {
+        while p[i as usize] != i {
+            p[i as usize] = p[p[i as usize] as usize];
+            i = p[i as usize];
+        }
+        i
+    }
+    for i in (0..n).filter(|&i| on(i)) {
+        let (x, y) = (i % w, i / w);
+        for j in [(x + 1 < w).then_some(i + 1), (y + 1 < h).then_some(i + w)].into_iter().flatten() {
+            if labels[j] == labels[i] {
+                let (a, b) = (find(&mut parent, i as u32), find(&mut parent, j as u32));
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+    }
+    let mut of_pixel = vec![u32::MAX; n];
+    let mut index_of_root = vec![u32::MAX; n];
+    let mut regions: Vec<Region> = Vec::new();
+    for i in (0..n).filter(|&i| on(i)) {
+        let r = find(&mut parent, i as u32) as usize;
+        if index_of_root[r] == u32::MAX {
+            index_of_root[r] = regions.len() as u32;
+            regions.push(Region { class: labels[i], pixels: 0, anchored: false });
+        }
+        of_pixel[i] = index_of_root[r];
+        regions[of_pixel[i] as usize].pixels += 1;
+    }
+    for (c, pix) in picks.iter().enumerate() {
+        for &i in pix.iter().filter(|&&i| i < n && labels[i] as usize == c) {
+            regions[of_pixel[i] as usize].anchored = true;
+        }
+    }
+
+    // Per pair of regions: every pair's step, and the soft pairs.
+    type Measured = (Vec<f32>, Vec<[u32; 2]>);
+    let mut steps: std::collections::BTreeMap<(u32, u32), Measured> = Default::default();
+    let px = |i: usize| photo.data[i].map(f64::from);
+    for i in (0..n).filter(|&i| on(i)) {
+        let (x, y) = (i % w, i / w);
+        for (j, d) in [((x + 1 < w).then_some(i + 1), 1), ((y + 1 < h).then_some(i + w), w)] {
+            let Some(j) = j.filter(|&j| on(j) && labels[j] != labels[i]) else { continue };
+            let contrast = relative(colours[labels[i] as usize], colours[labels[j] as usize]);
+            if contrast <= 0.0 {
+                continue;
+            }
+            // One pixel further in on each side where the region goes on, so that mixed
+            // border pixels do not halve a sharp edge's step.
+            let inner =
+                i.checked_sub(d).filter(|&p| (d == w || x > 0) && of_pixel[p] == of_pixel[i]).unwrap_or(i);
+            let outer = Some(j + d)
+                .filter(|&q| q < n && (d == w || (j + 1) % w != 0) && of_pixel[q] == of_pixel[j])
+                .unwrap_or(j);
+            let step = (relative(px(inner), px(outer)) / contrast) as f32;
+            let (key, pixels) = if of_pixel[i] < of_pixel[j] {
+                ((of_pixel[i], of_pixel[j]), [i as u32, j as u32])
+            } else {
+                ((of_pixel[j], of_pixel[i]), [j as u32, i as u32])
+            };
+            let entry = steps.entry(key).or_default();
+            entry.0.push(step);
+            if step < SOFT_STEP {
+                entry.1.push(pixels);
+            }
+        }
+    }
+    let borders = steps
+        .into_iter()
+        .map(|((a, b), (mut v, soft))| {
+            let m = v.len() / 2;
+            let step = *v.select_nth_unstable_by(m, f32::total_cmp).1;
+            Border { regions: [a, b], pairs: v.len(), step, soft }
+        })
+        .collect();
+    Regions { of_pixel, regions, borders }
+}
+
+/// Which of two softly bordering regions takes the other's class (module notes), if either;
+/// a region holding picks of its class then yields only its part beyond them ([`flood`]).
+fn yields(a: &Region, b: &Region, loss: &[u8]) -> Option<usize> {
+    let is_loss = |r: &Region| loss.contains(&r.class);
+    match (is_loss(a), is_loss(b)) {
+        (true, false) => Some(0),
+        (false, true) => Some(1),
+        _ if a.pixels < b.pixels => Some(0),
+        _ if b.pixels < a.pixels => Some(1),
+        _ => None,
+    }
+}
+
+/// Splits regions that hold picks but also border softly on a paint they should yield to:
+/// the picks keep their class, the soft border's pixels take the other, and every pixel of
+/// the region goes to the seed it reaches by the path whose largest colour step is least
+/// (a watershed on the colour steps: the split falls on the sharpest line between the picked
+/// paint and the altered patch). `seeds`: (pixel, class); the picks are added here.
+fn flood(
+    photo: &LinearImage,
+    r: &Regions,
+    labels: &mut [u8],
+    picks: &[Vec<usize>],
+    typical: &[bool],
+    seeds: Vec<(u32, u8)>,
+) {
+    use std::cmp::Reverse;
+    use std::collections::BinaryHeap;
+    let (w, h) = (photo.width as usize, photo.height as usize);
+    let split: std::collections::BTreeSet<u32> = seeds.iter().map(|&(i, _)| r.of_pixel[i as usize]).collect();
+    let mut heap: BinaryHeap<Reverse<(u32, u32, u8)>> =
+        seeds.into_iter().map(|(i, c)| Reverse((0, i, c))).collect();
+    for (c, pix) in picks.iter().enumerate() {
+        for &i in pix.iter().filter(|&&i| i < labels.len() && labels[i] as usize == c) {
+            if split.contains(&r.of_pixel[i]) {
+                heap.push(Reverse((0, i as u32, c as u8)));
+            }
+        }
+    }
+    for i in (0..labels.len()).filter(|&i| typical[i] && r.of_pixel[i] != u32::MAX) {
+        if split.contains(&r.of_pixel[i]) {
+            heap.push(Reverse((0, i as u32, labels[i])));
+        }
+    }
+    let mut settled = vec![false; labels.len()];
+    let px = |i: usize| photo.data[i].map(f64::from);
+    let mut out: Vec<(usize, u8)> = Vec::new();
+    while let Some(Reverse((cost, i, c))) = heap.pop() {
+        let i = i as usize;
+        if std::mem::replace(&mut settled[i], true) {
+            continue;
+        }
+        out.push((i, c));
+        let (x, y) = (i % w, i / w);
+        for j in [
+            (x > 0).then(|| i - 1),
+            (x + 1 < w).then(|| i + 1),
+            (y > 0).then(|| i - w),
+            (y + 1 < h).then(|| i + w),
+        ]
+        .into_iter()
+        .flatten()
+        .filter(|&j| !settled[j] && r.of_pixel[j] == r.of_pixel[i])
+        {
+            // Steps are non-negative, so their bits order as the values do.
+            let step = (relative(px(i), px(j)) as f32).to_bits();
+            heap.push(Reverse((cost.max(step), j as u32, c)));
+        }
+    }
+    for (i, c) in out {
+        labels[i] = c;
+    }
+}
+
+/// Relabels regions with soft borders (module notes) until stable; returns how many pixels
+/// changed class. `loss`: the loss classes; `picks[c]`: the pixels picked for class `c`.
+pub fn merge_soft_regions(
+    photo: &LinearImage,
+    labels: &mut [u8],
+    k: usize,
+    colours: &[[f64; 3]],
+    picks: &[Vec<usize>],
+    typical: &[bool],
+    loss: &[u8],
+) -> usize {
+    let before = labels.to_vec();
+    for _ in 0..MAX_ROUNDS {
+        let r = regions(photo, labels, k, colours, picks);
+        // Per region: the (size, class) of the largest region it joins.
+        let mut join: Vec<Option<(u32, u8)>> = vec![None; r.regions.len()];
+        // Seeds of the regions with picks that yield in part.
+        let mut seeds: Vec<(u32, u8)> = Vec::new();
+        for b in r.borders.iter().filter(|b| b.pairs >= MIN_PAIRS && b.step < SOFT_STEP) {
+            let pair = b.regions.map(|g| &r.regions[g as usize]);
+            let Some(y) = yields(pair[0], pair[1], loss) else { continue };
+            let into = pair[1 - y];
+            if pair[y].anchored {
+                seeds.extend(b.soft.iter().map(|p| (p[y], into.class)));
+                continue;
+            }
+            let slot = &mut join[b.regions[y] as usize];
+            if slot.is_none_or(|(size, _)| into.pixels > size) {
+                *slot = Some((into.pixels, into.class));
+            }
+        }
+        let old = labels.to_vec();
+        for (l, &g) in labels.iter_mut().zip(&r.of_pixel) {
+            if let Some((_, c)) = join.get(g as usize).copied().flatten() {
+                *l = c;
+            }
+        }
+        if !seeds.is_empty() {
+            flood(photo, &r, labels, picks, typical, seeds);
+        }
+        if *labels == old[..] {
+            break;
+        }
+    }
+    labels.iter().zip(&before).filter(|(a, b)| a != b).count()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RED: [f64; 3] = [0.50, 0.10, 0.08];
+    const CLAY: [f64; 3] = [0.30, 0.20, 0.12];
+    const SLIP: [f64; 3] = [0.60, 0.55, 0.45];
+    const W: usize = 120;
+    const H: usize = 60;
+
+    /// Red paint with a sharp-edged chip (clay) on the left, a patch on the right that fades
+    /// smoothly from red to a clay-like colour at its centre, and slip below a straight edge.
+    /// Labels as the per-pixel rule gives them: the faded core is nearer the clay.
+    fn scene() -> (LinearImage, Vec<u8>) {
+        let mut photo = LinearImage::new(W as u32, H as u32).unwrap();
+        let mut labels = vec![0u8; W * H];
+        for y in 0..H {
+            for x in 0..W {
+                let i = y * W + x;
+                let (colour, label) = if y >= 50 {
+                    (SLIP, 2)
+                } else if (x as f64 - 15.0).hypot(y as f64 - 15.0) < 6.0 {
+                    (CLAY, 1)
+                } else {
+                    // Fading over tens of pixels: 0 far from (85, 22), up to 0.95 of the way
+                    // to the clay colour.
+                    let d = (x as f64 - 85.0).hypot(y as f64 - 22.0);
+                    let f = 0.95 * (-(d / 15.0).powi(2)).exp();
+                    let c = [0, 1, 2].map(|j| RED[j] + f * (CLAY[j] - RED[j]));
+                    (c, if f > 0.5 { 1 } else { 0 })
+                };
+                // A little deterministic texture, as grain and noise give.
+                let t = 1.0 + 0.01 * (((x * 7 + y * 13) % 5) as f64 - 2.0);
+                photo.data[i] = colour.map(|c| (c * t) as f32);
+                labels[i] = label;
+            }
+        }
+        (photo, labels)
+    }
+
+    fn at(x: usize, y: usize) -> usize {
+        y * W + x
+    }
+
+    #[test]
+    fn a_faded_patch_joins_its_paint_and_a_chip_keeps_its_class() {
+        let (photo, mut labels) = scene();
+        assert_eq!(labels[at(85, 22)], 1, "the scene's faded core starts as clay");
+        let picks = vec![vec![at(35, 5)], vec![at(15, 15)], vec![at(40, 55)]];
+        let typical = vec![false; labels.len()];
+        let changed = merge_soft_regions(&photo, &mut labels, 3, &[RED, CLAY, SLIP], &picks, &typical, &[1]);
+        assert_eq!(labels[at(85, 22)], 0, "the faded patch is red paint");
+        assert!(changed > 20, "{changed}");
+        assert_eq!(labels[at(15, 15)], 1, "the chip keeps its class");
+        assert_eq!(labels[at(40, 55)], 2, "the slip is untouched");
+        // Only the faded patch changed.
+        let (_, before) = scene();
+        for i in (0..labels.len()).filter(|&i| labels[i] != before[i]) {
+            let (x, y) = (i % W, i / W);
+            assert!((x as f64 - 85.0).hypot(y as f64 - 22.0) < 15.0, "({x}, {y}) changed");
+        }
+    }
+
+    #[test]
+    fn a_chip_without_picks_keeps_its_class_too() {
+        // No pick in the chip: its edge is sharp, so nothing yields there.
+        let (photo, mut labels) = scene();
+        let picks = vec![vec![at(35, 5)], vec![], vec![at(40, 55)]];
+        let typical = vec![false; labels.len()];
+        merge_soft_regions(&photo, &mut labels, 3, &[RED, CLAY, SLIP], &picks, &typical, &[1]);
+        assert_eq!(labels[at(15, 15)], 1);
+        assert_eq!(labels[at(85, 22)], 0);
+    }
+
+    #[test]
+    fn a_picked_region_yields_only_its_altered_part() {
+        // Two more chips that open into the faded core, one of them picked: chips and core are
+        // one clay-labelled region holding a pick, so only the part that does not look like
+        // the picks (the faded paint) yields, and the split falls on the chips' sharp edges.
+        let (mut photo, mut labels) = scene();
+        let in_chip = |i: usize| {
+            let (x, y) = ((i % W) as f64, (i / W) as f64);
+            (x - 72.0).hypot(y - 22.0) < 5.0 || (x - 98.0).hypot(y - 22.0) < 4.0
+        };
+        for i in (0..labels.len()).filter(|&i| in_chip(i)) {
+            photo.data[i] = CLAY.map(|c| c as f32);
+            labels[i] = 1;
+        }
+        let picks = vec![vec![at(35, 5)], vec![at(72, 22)], vec![at(40, 55)]];
+        let typical: Vec<bool> = (0..labels.len()).map(in_chip).collect();
+        merge_soft_regions(&photo, &mut labels, 3, &[RED, CLAY, SLIP], &picks, &typical, &[1]);
+        assert!(
+            (0..labels.len()).filter(|&i| in_chip(i)).all(|i| labels[i] == 1),
+            "the chip keeps its class"
+        );
+        assert_eq!(labels[at(85, 22)], 0, "the faded core is red");
+        assert_eq!(labels[at(15, 15)], 1, "the first chip too");
+    }
+}
