@@ -13,7 +13,7 @@
 //! the contrast the border is soft, and one region takes the other's class:
 //! - a region holding a pick of its own class (the conservator named it) yields only in
 //!   part: a watershed on colour steps from its picks and its typical pixels on one side and
-//!   the soft border on the other splits it along its sharpest line ([`flood`]);
+//!   the soft border on the other splits it along its sharpest line (`flood`);
 //! - a loss class (bare substrate) never spreads over a soft border: a loss has an edge, so a
 //!   loss-coloured region that fades into paint is that paint;
 //! - otherwise the smaller region takes the class of the larger (a faded or stained patch
