@@ -252,6 +252,22 @@ pub struct Stats {
     /// The pixels the target asks to light that stay without light, and why.
     #[serde(default)]
     pub unlit: Unlit,
+    /// Covered points whose target, at scale `s`, is darker than the projectors' black level
+    /// and the room already light them ([`below_black`]): no frame can take light away, so
+    /// they show lifted. A low bound lowers `s` while the black level stays.
+    #[serde(default)]
+    pub below_black: usize,
+}
+
+/// The covered camera pixels (some weight) whose target at scale `scale` asks, in some
+/// channel, for less than the camera sees there with every projector black (`stage.ambient`:
+/// black level plus room light).
+pub fn below_black(stage: &StageModel, target: &LinearImage, weights: &[f32], scale: f64) -> Vec<usize> {
+    let kn = weights.len() / target.data.len().max(1);
+    (0..target.data.len())
+        .filter(|&i| weights[i * kn..(i + 1) * kn].iter().any(|&w| w > 0.0))
+        .filter(|&i| (0..3).any(|c| scale * f64::from(target.data[i][c]) < f64::from(stage.ambient[i][c])))
+        .collect()
 }
 
 /// The pixels the target asks to light (a finite target: inside the object mask where one
@@ -489,6 +505,15 @@ pub fn compensate_on(
     let refinement = footprint::refine(stage, prep, target, params, &mut draft);
     let Draft { weights, mut frames, scale, covered, by_bound, by_sat } = draft;
     let unlit = Unlit::count(stage, &prep.geometry, target);
+    let dark = below_black(stage, target, &weights, scale).len();
+    if dark * 20 > covered {
+        tracing::warn!(
+            "{dark} of {covered} lit points ({:.1} %) ask for less light than the projectors' black level \
+             and the room give at this bound: they will look lifted (a higher bound, fewer or \
+             deeper-black projectors, or a darker room help)",
+            100.0 * dark as f64 / covered.max(1) as f64
+        );
+    }
     // Light that would land where the model cannot bound it stays dark.
     let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut frames);
 
@@ -530,6 +555,7 @@ pub fn compensate_on(
         covered,
         by_bound,
         by_sat,
+        below_black = dark,
         %unlit,
         "compensation done"
     );
@@ -556,6 +582,7 @@ pub fn compensate_on(
             unseen_points: cert.points() - cert.first_unseen,
             refinement,
             unlit,
+            below_black: dark,
         },
     })
 }

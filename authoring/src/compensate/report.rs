@@ -183,6 +183,7 @@ pub fn save(
 <tr><td>global scale s</td><td>{scale:.5}</td></tr>
 <tr><td>covered object points</td><td>{cov}</td></tr>
 <tr><td>limited by the bound / by projector saturation</td><td>{bb} ({bbp:.2} %) / {bs} ({bsp:.2} %)</td></tr>
+<tr><td>darker than the black level and room light give (shown lifted)</td><td>{bbl} ({bblp:.2} %)</td></tr>
 <tr><td>guarantee rounds, pixels dimmed</td><td>{rounds}, {dimmed}</td></tr>
 <tr><td>certificate points (of them beside unknown surface)</td><td>{cp} ({up})</td></tr>
 <tr><td>pixels kept black: light would land on unknown surface</td><td>{ud}</td></tr>
@@ -207,6 +208,8 @@ pub fn save(
         bb = s.limited_by_bound,
         bbp = 100.0 * s.limited_by_bound as f64 / s.covered_points.max(1) as f64,
         bs = s.limited_by_saturation,
+        bbl = s.below_black,
+        bblp = 100.0 * s.below_black as f64 / s.covered_points.max(1) as f64,
         bsp = 100.0 * s.limited_by_saturation as f64 / s.covered_points.max(1) as f64,
         rounds = s.rounds,
         dimmed = s.dimmed_pixels,

@@ -386,3 +386,32 @@ proptest! {
         prop_assert!(tp <= e_bound, "true peak {} > E_bound {}", tp, e_bound);
     }
 }
+
+#[test]
+fn points_darker_than_the_black_level_are_counted() {
+    // Left half black paint: at any scale it asks for less than the projectors' black level
+    // and the room already give. Right half bright paint, far above them when the bound
+    // leaves the projectors their full output.
+    let s = synthetic_stage(3, 5);
+    let (w, h) = (s.model.camera.width, s.model.camera.height);
+    let mut t = LinearImage::new(w, h).unwrap();
+    for y in 0..h {
+        for x in 0..w {
+            t.set(x, y, if x < w / 2 { [0.0; 3] } else { [0.8; 3] });
+        }
+    }
+    let at = |bound: f64| {
+        compensate(&s.model, &t, &Params::new(bound, Exponent::Finite(8.0), 0.05).unwrap()).unwrap()
+    };
+    let c = at(5000.0);
+    let kn = c.frames.len();
+    let covered_left = (0..(w * h) as usize)
+        .filter(|&i| (i as u32 % w) < w / 2 && c.weights[i * kn..(i + 1) * kn].iter().any(|&v| v > 0.0))
+        .count();
+    assert!(covered_left > 100, "{covered_left}");
+    assert_eq!(c.stats.below_black, covered_left);
+    // A low bound lowers the scale while the black level stays: bright paint joins in.
+    let low = at(120.0);
+    assert!(low.stats.scale < c.stats.scale);
+    assert!(low.stats.below_black > covered_left, "{} at 120 lx", low.stats.below_black);
+}

@@ -331,6 +331,19 @@ pub fn visitor_view(
             "dE00",
         ),
     ];
+    // Where the target is darker than the projectors' black level and the room: the share,
+    // and the error there (a low bound lowers the scale while the black level stays).
+    let dark = compensate::below_black(model, target, &comp.weights, comp.stats.scale);
+    rows.push(Metric::info(
+        STEP,
+        &name("covered pixels darker than the black level asks"),
+        100.0 * dark.len() as f64 / n.max(1) as f64,
+        "%",
+    ));
+    if !dark.is_empty() {
+        let (de, _) = region_error(&comp, &view, target, &dark);
+        rows.push(Metric::info(STEP, &name("CIEDE2000 mean there"), de, "dE00"));
+    }
     if let Some(chipped) = truth.chipped() {
         let object: Vec<bool> = target.data.iter().map(|t| t.iter().any(|&c| c > 0.0)).collect();
         let (chips, ring) = chip_regions(&chipped, &object, target.width as usize);

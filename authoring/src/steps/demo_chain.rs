@@ -11,7 +11,7 @@ use restage_authoring::capture_set::CaptureManifest;
 use restage_authoring::classify::{LabelMap, picks_from_labels};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
 use restage_authoring::contact_sheet;
-use restage_authoring::eval::compensate::{TruePhysics, colour_error, true_peak, whole_object};
+use restage_authoring::eval::compensate::{TruePhysics, colour_error, region_error, true_peak, whole_object};
 use restage_authoring::export::{
     BundleDescription, LightDesc, ObjectDesc, PolicyDesc, ProjectorDesc, SceneDesc,
 };
@@ -209,15 +209,27 @@ pub fn run_chain(
         let (_, de_object, object_px) = whole_object(&comp, &view, &target);
         let tp = true_peak(&stage, &comp.frames);
         let s = &comp.stats;
+        // The pixels asking for less light than the black level and room give: shown lifted.
+        let dark = compensate::below_black(&model, &target, &comp.weights, s.scale);
+        let dark_text = if dark.is_empty() {
+            "none".to_string()
+        } else {
+            let (de, _) = region_error(&comp, &view, &target, &dark);
+            format!(
+                "{:.2} % (CIEDE2000 {de:.2} there)",
+                100.0 * dark.len() as f64 / s.covered_points.max(1) as f64
+            )
+        };
         tracing::info!(
             "step 6 compensate {id:<8} ({:.1} s): certificate peak {:.1} lx, TRUE peak {:.1} lx (E_bound {E_BOUND_LUX} lx); \
              visitor view vs target CIEDE2000 mean {de_mean:.2}, p95 {de_p95:.2} over {n} lit px, \
-             {de_object:.2} over all {object_px} px of the mask; mask {}; limited by bound {:.2} %",
+             {de_object:.2} over all {object_px} px of the mask; mask {}; limited by bound {:.2} %; \
+             darker than the black level {dark_text}",
             at(),
             s.peak_lux,
             tp,
             s.unlit,
-            100.0 * s.limited_by_bound as f64 / s.covered_points.max(1) as f64
+            100.0 * s.limited_by_bound as f64 / s.covered_points.max(1) as f64,
         );
         log(format!(
             "6 compensate  {id:<8} brightest point {:.1} lx, allowed {:.1} (bound {E_BOUND_LUX} lx less \

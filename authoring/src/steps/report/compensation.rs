@@ -115,6 +115,7 @@ impl Page<'_> {
              <tr><th scope=\"row\">object points lit</th><td class=\"n\">{}</td></tr>\
              <tr><th scope=\"row\">limited by the bound</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">limited by projector saturation</th><td class=\"n\">{} ({})</td></tr>\
+             <tr><th scope=\"row\">darker than the black level and room light give (shown lifted)</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">clip fraction allowed</th><td class=\"n\">{}</td></tr>\
              <tr><th scope=\"row\">guarantee rounds, pixels dimmed</th><td class=\"n\">{}, {}</td></tr>{}{}\
              </tbody></table></div>",
@@ -126,6 +127,8 @@ impl Page<'_> {
             pct(st.limited_by_bound as f64 / covered),
             st.limited_by_saturation,
             pct(st.limited_by_saturation as f64 / covered),
+            st.below_black,
+            pct(st.below_black as f64 / covered),
             pct(sm.clip_fraction),
             st.rounds,
             st.dimmed_pixels,
