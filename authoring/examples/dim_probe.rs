@@ -8,8 +8,8 @@
 
 use restage_authoring::color::{ciede2000, linear_srgb_to_lab};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
-use restage_authoring::eval::compensate::{TruePhysics, pristine_target};
-use restage_authoring::stage_sim::{RigVariation, SceneConfig, SceneName, VirtualStage};
+use restage_authoring::eval::compensate::{TruePhysics, eval_scene, pristine_target};
+use restage_authoring::stage_sim::{RigVariation, SceneName, VirtualStage};
 
 fn main() -> anyhow::Result<()> {
     let seeds: Vec<u64> = std::env::args().skip(1).map(|s| s.parse()).collect::<Result<_, _>>()?;
@@ -22,15 +22,7 @@ fn main() -> anyhow::Result<()> {
             // The projectors' black level as drawn (0.25-0.6 % of full output each, about
             // 170-400:1), a quarter of it (a deep-black projector) and none.
             for black in [1.0f32, 0.25, 0.0] {
-                let cfg = SceneConfig {
-                    scene,
-                    seed,
-                    camera: [480, 360],
-                    projector: [560, 420],
-                    rig: RigVariation::Seeded,
-                    ..SceneConfig::default()
-                };
-                let mut stage = VirtualStage::new(&cfg)?;
+                let mut stage = VirtualStage::new(&eval_scene(scene, seed, RigVariation::Seeded))?;
                 if black != 1.0 {
                     let mut setup = stage.setup().clone();
                     setup.projectors.iter_mut().for_each(|p| p.black = p.black.map(|b| b * black));

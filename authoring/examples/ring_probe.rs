@@ -7,9 +7,9 @@
 
 use restage_authoring::color::{ciede2000, linear_srgb_to_lab};
 use restage_authoring::compensate::{self, Exponent, Params, Prepared};
-use restage_authoring::eval::compensate::{CHIP_RING_PX, TruePhysics, pristine_target};
+use restage_authoring::eval::compensate::{CHIP_RING_PX, TruePhysics, eval_scene, pristine_target};
 use restage_authoring::stage_model::StageModel;
-use restage_authoring::stage_sim::{RigVariation, SceneConfig, SceneName, VirtualStage};
+use restage_authoring::stage_sim::{RigVariation, SceneName, VirtualStage};
 
 /// Squared distance (pixel centres) from pixel `i` to the nearest chipped pixel within the ring.
 fn chip_distance2(chipped: &[bool], width: usize, i: usize) -> Option<i64> {
@@ -38,15 +38,7 @@ fn main() -> anyhow::Result<()> {
     for seed in seeds {
         for scene in SceneName::ALL {
             for blur in [true, false] {
-                let cfg = SceneConfig {
-                    scene,
-                    seed,
-                    camera: [480, 360],
-                    projector: [560, 420],
-                    rig: RigVariation::Seeded,
-                    ..SceneConfig::default()
-                };
-                let mut stage = VirtualStage::new(&cfg)?;
+                let mut stage = VirtualStage::new(&eval_scene(scene, seed, RigVariation::Seeded))?;
                 if !blur {
                     let mut setup = stage.setup().clone();
                     setup.projectors.iter_mut().for_each(|p| p.blur_px = 0.0);

@@ -67,6 +67,12 @@ pub fn pristine_target(stage: &VirtualStage) -> LinearImage {
     LinearImage { width: cam.width, height: cam.height, data }
 }
 
+/// A built-in scene at the evaluation's size (camera 480x360, projectors 560x420): the size of
+/// the compensation figures here and of the probes that take them apart.
+pub fn eval_scene(scene: SceneName, seed: u64, rig: RigVariation) -> SceneConfig {
+    SceneConfig { scene, seed, camera: [480, 360], projector: [560, 420], rig, ..SceneConfig::default() }
+}
+
 /// Every built-in scene at an evaluation size (camera 480x360, projectors 560x420), and the
 /// vase again standing on the grey plinth: the object's pristine paint as the target (0 on
 /// the plinth, which is not to be lit), compensated with the TRUE stage model (geometry,
@@ -80,15 +86,7 @@ pub fn evaluate_builtin(
     let mut rows = Vec::new();
     let cases = SceneName::ALL.into_iter().map(|scene| (scene, false)).chain([(SceneName::Vase, true)]);
     for (scene, plinth) in cases {
-        let cfg = SceneConfig {
-            scene,
-            seed,
-            camera: [480, 360],
-            projector: [560, 420],
-            plinth,
-            rig,
-            ..SceneConfig::default()
-        };
+        let cfg = SceneConfig { plinth, ..eval_scene(scene, seed, rig) };
         let stage = VirtualStage::new(&cfg).expect("built-in scene configuration is valid");
         let model = stage.truth();
         let target = pristine_target(&stage);
@@ -336,7 +334,7 @@ pub fn visitor_view(
     let dark = compensate::below_black(model, target, &comp.weights, comp.stats.scale);
     rows.push(Metric::info(
         STEP,
-        &name("covered pixels darker than the black level asks"),
+        &name("covered pixels asking for less light than the black level gives"),
         100.0 * dark.len() as f64 / n.max(1) as f64,
         "%",
     ));
