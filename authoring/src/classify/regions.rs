@@ -72,6 +72,45 @@ fn relative(a: [f64; 3], b: [f64; 3]) -> f64 {
     if s > 0.0 { d / s } else { 0.0 }
 }
 
+/// Labels 4-connected components (the regions here, the restoration's patches) of equal class among `active` pixels that are not
+/// `background`. Returns the component of every pixel (`u32::MAX` for none) and the count.
+pub fn components(labels: &[u8], active: &[bool], w: usize, h: usize, background: u8) -> (Vec<u32>, usize) {
+    let mut comp = vec![u32::MAX; w * h];
+    let mut n = 0u32;
+    let mut stack = Vec::new();
+    for start in 0..w * h {
+        if comp[start] != u32::MAX || !active[start] || labels[start] == background {
+            continue;
+        }
+        let l = labels[start];
+        comp[start] = n;
+        stack.push(start);
+        while let Some(i) = stack.pop() {
+            let (x, y) = (i % w, i / w);
+            let mut visit = |j: usize| {
+                if comp[j] == u32::MAX && active[j] && labels[j] == l {
+                    comp[j] = n;
+                    stack.push(j);
+                }
+            };
+            if x > 0 {
+                visit(i - 1);
+            }
+            if x + 1 < w {
+                visit(i + 1);
+            }
+            if y > 0 {
+                visit(i - w);
+            }
+            if y + 1 < h {
+                visit(i + w);
+            }
+        }
+        n += 1;
+    }
+    (comp, n as usize)
+}
+
 /// Finds the regions of `labels` (classes `0..k`; anything else is off the object) and
 /// measures every border. `colours`: each class's colour (linear RGB) the contrast is
 /// measured between; `picks[c]`: the pixels picked for class `c`.
@@ -85,35 +124,12 @@ pub fn regions(
     let (w, h) = (photo.width as usize, photo.height as usize);
     let n = labels.len();
     let on = |i: usize| (labels[i] as usize) < k;
-    // Connected components by union-find with path halving; a root is its set's smallest index.
-    let mut parent: Vec<u32> = (0..n as u32).collect();
-    fn find(p: &mut [u32], mut i: u32) -> u32 {
-        while p[i as usize] != i {
-            p[i as usize] = p[p[i as usize] as usize];
-            i = p[i as usize];
-        }
-        i
-    }
-    for i in (0..n).filter(|&i| on(i)) {
-        let (x, y) = (i % w, i / w);
-        for j in [(x + 1 < w).then_some(i + 1), (y + 1 < h).then_some(i + w)].into_iter().flatten() {
-            if labels[j] == labels[i] {
-                let (a, b) = (find(&mut parent, i as u32), find(&mut parent, j as u32));
-                parent[a.max(b) as usize] = a.min(b);
-            }
-        }
-    }
-    let mut of_pixel = vec![u32::MAX; n];
-    let mut index_of_root = vec![u32::MAX; n];
-    let mut regions: Vec<Region> = Vec::new();
-    for i in (0..n).filter(|&i| on(i)) {
-        let r = find(&mut parent, i as u32) as usize;
-        if index_of_root[r] == u32::MAX {
-            index_of_root[r] = regions.len() as u32;
-            regions.push(Region { class: labels[i], pixels: 0, anchored: false });
-        }
-        of_pixel[i] = index_of_root[r];
-        regions[of_pixel[i] as usize].pixels += 1;
+    let active: Vec<bool> = (0..n).map(on).collect();
+    let (of_pixel, count) = components(labels, &active, w, h, u8::MAX);
+    let mut regions = vec![Region { class: 0, pixels: 0, anchored: false }; count];
+    for (i, &g) in of_pixel.iter().enumerate().filter(|&(_, &g)| g != u32::MAX) {
+        regions[g as usize].class = labels[i];
+        regions[g as usize].pixels += 1;
     }
     for (c, pix) in picks.iter().enumerate() {
         for &i in pix.iter().filter(|&&i| i < n && labels[i] as usize == c) {

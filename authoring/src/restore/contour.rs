@@ -34,44 +34,7 @@ pub struct Patch {
 
 const NONE: u32 = u32::MAX;
 
-/// Labels 4-connected components of equal class among `active` pixels that are not
-/// `background`. Returns the component of every pixel (`u32::MAX` for none) and the count.
-pub fn components(labels: &[u8], active: &[bool], w: usize, h: usize, background: u8) -> (Vec<u32>, usize) {
-    let mut comp = vec![NONE; w * h];
-    let mut n = 0u32;
-    let mut stack = Vec::new();
-    for start in 0..w * h {
-        if comp[start] != NONE || !active[start] || labels[start] == background {
-            continue;
-        }
-        let l = labels[start];
-        comp[start] = n;
-        stack.push(start);
-        while let Some(i) = stack.pop() {
-            let (x, y) = (i % w, i / w);
-            let mut visit = |j: usize| {
-                if comp[j] == NONE && active[j] && labels[j] == l {
-                    comp[j] = n;
-                    stack.push(j);
-                }
-            };
-            if x > 0 {
-                visit(i - 1);
-            }
-            if x + 1 < w {
-                visit(i + 1);
-            }
-            if y > 0 {
-                visit(i - w);
-            }
-            if y + 1 < h {
-                visit(i + w);
-            }
-        }
-        n += 1;
-    }
-    (comp, n as usize)
-}
+use crate::classify::regions::components;
 
 /// Traces every patch of a `w` x `h` buffer. Deterministic: patches in scan order of their
 /// first pixel, contours in order of their first edge.
