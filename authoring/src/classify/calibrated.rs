@@ -134,15 +134,23 @@ fn channel_scale(photo: &LinearImage, idx: &[Vec<usize>], reps: &[[f64; 3]], y_m
     [0, 1, 2].map(|j| (ss[j] / dof as f64).sqrt().max(floor[j]))
 }
 
+/// Each colour's mean and precision in the weighted feature space, and the prior's variance.
+struct ClassMetrics {
+    means: Vec<[f32; 3]>,
+    precisions: Vec<Precision>,
+    tau2: f64,
+}
+
 /// Each colour's mean and metric (precision) in the weighted feature space, from its picks:
 /// the covariance of the picks shrunk towards Eq. 1's isotropic metric by `prior_picks`
 /// pseudo-picks (module notes). The precisions are scaled so that the isotropic prior is
-/// the identity, which keeps the feature units of plain Eq. 1.
+/// the identity, which keeps the feature units of plain Eq. 1; the scale, `τ²`, is returned
+/// too (a squared distance under these precisions over `τ²` is the Mahalanobis distance).
 fn class_metrics(
     features: &Features,
     idx: &[Vec<usize>],
     prior_picks: f64,
-) -> Result<(Vec<[f32; 3]>, Vec<Precision>), ClassifyError> {
+) -> Result<ClassMetrics, ClassifyError> {
     if prior_picks.is_nan() || prior_picks <= 0.0 {
         return Err(ClassifyError::Option {
             name: "prior_picks",
@@ -178,7 +186,7 @@ fn class_metrics(
         let p = precision.map(|v| v as f32);
         metrics.push([p[(0, 0)], p[(1, 1)], p[(2, 2)], p[(0, 1)], p[(0, 2)], p[(1, 2)]]);
     }
-    Ok((init, metrics))
+    Ok(ClassMetrics { means: init, precisions: metrics, tau2 })
 }
 
 /// Mean linear RGB of the given pixels.
@@ -272,7 +280,8 @@ pub fn classify(
         let v = xyy_f32(rgb);
         [v[0] * sw[0], v[1] * sw[1], v[2] * sw[2]]
     });
-    let (mut init, metrics) = class_metrics(&features, &idx, opts.prior_picks)?;
+    let ClassMetrics { means: mut init, precisions: metrics, tau2 } =
+        class_metrics(&features, &idx, opts.prior_picks)?;
     if opts.prior_picks.is_infinite() {
         // The paper's path exactly: each colour at its representative (the picks averaged in
         // linear RGB, then xyY), not at the mean of the picks' xyY.
@@ -283,26 +292,30 @@ pub fn classify(
     if opts.merge_soft {
         // Pixels within the spread of their class's picks (squared Mahalanobis distance
         // under the 99 % point of chi-square with 3 degrees of freedom).
+        let limit = TYPICAL_CHI2 * tau2 as f32;
         let typical: Vec<bool> = labels
             .iter()
             .enumerate()
             .map(|(i, &l)| {
-                metrics.get(l as usize).is_some_and(|p| {
-                    mahalanobis2(features.get(i), res.centroids[l as usize], p) < TYPICAL_CHI2
-                })
+                metrics
+                    .get(l as usize)
+                    .is_some_and(|p| mahalanobis2(features.get(i), res.centroids[l as usize], p) < limit)
             })
             .collect();
         let changed =
             super::regions::merge_soft_regions(photo, &mut labels, k, &reps_rgb, &idx, &typical, &opts.loss);
         info!(changed, "relabelled faded or stained regions");
     }
+    // Edges after regions: the edge pass takes each mixed pixel's paints from the classes
+    // beside it, which must already be right (unmixing first also fixes rows of mixed pixels
+    // that tie a faded band to the ground, but it lost more than it gained on held-out seeds).
     if opts.unmix_edges {
         let changed = super::edges::unmix_edges(photo, &mut labels, mask, k, &opts.loss);
         info!(changed, "relabelled mixed edge pixels");
-        res.counts = vec![0; k];
-        for &l in labels.iter().filter(|&&l| (l as usize) < k) {
-            res.counts[l as usize] += 1;
-        }
+    }
+    res.counts = vec![0; k];
+    for &l in labels.iter().filter(|&&l| (l as usize) < k) {
+        res.counts[l as usize] += 1;
     }
     let labels = LabelMap::from_vec(w, h, labels)?;
     let means = class_mean_rgb(photo, &labels, k);

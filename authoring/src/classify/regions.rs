@@ -19,6 +19,13 @@
 //! - otherwise the smaller region takes the class of the larger (a faded or stained patch
 //!   lies within the paint it alters).
 //!
+//! A border that is sharp on the median may still be soft along a stretch: a stain that spreads
+//! over a paint edge joins the two paints there, while the rest of the edge stays sharp. A run
+//! of at least [`MIN_RUN`] touching soft pairs is such a stretch, and a region holding picks that
+//! would yield across it yields the part beyond its sharpest line, as above. A region without
+//! picks does not: its sharp border is evidence that it is paint, and which side of the stretch
+//! is altered is not known (taking the smaller side turned the bowl's stained slip red).
+//!
 //! Rounds repeat until nothing changes, so a faded patch beside a fainter one joins the
 //! paint through it.
 
@@ -44,6 +51,43 @@ pub struct Border {
     pub step: f32,
     /// The pairs whose step is below [`SOFT_STEP`]: (pixel in `regions[0]`, pixel in `regions[1]`).
     pub soft: Vec<[u32; 2]>,
+    /// The soft pairs that lie in runs of at least [`MIN_RUN`] (8-connected along the border).
+    pub runs: Vec<[u32; 2]>,
+}
+
+/// Fewest soft pairs in a run along a border for it to be a soft stretch of a sharp border.
+pub const MIN_RUN: usize = 10;
+
+/// The soft pairs that lie in runs of at least [`MIN_RUN`] pairs whose first pixels touch
+/// (8-neighbours).
+fn runs(soft: &[[u32; 2]], w: usize) -> Vec<[u32; 2]> {
+    let at: std::collections::HashMap<u32, usize> = soft.iter().enumerate().map(|(k, p)| (p[0], k)).collect();
+    let mut parent: Vec<usize> = (0..soft.len()).collect();
+    fn root(parent: &mut [usize], mut k: usize) -> usize {
+        while parent[k] != k {
+            parent[k] = parent[parent[k]];
+            k = parent[k];
+        }
+        k
+    }
+    for (k, p) in soft.iter().enumerate() {
+        let (x, y) = ((p[0] as usize % w) as i64, (p[0] as usize / w) as i64);
+        for (dx, dy) in [(1, 0), (-1, 1), (0, 1), (1, 1)] {
+            let (nx, ny) = (x + dx, y + dy);
+            if nx < 0 || nx >= w as i64 {
+                continue;
+            }
+            if let Some(&o) = at.get(&((ny as usize * w + nx as usize) as u32)) {
+                let (a, b) = (root(&mut parent, k), root(&mut parent, o));
+                parent[a] = b;
+            }
+        }
+    }
+    let mut size = vec![0usize; soft.len()];
+    for k in 0..soft.len() {
+        size[root(&mut parent, k)] += 1;
+    }
+    (0..soft.len()).filter(|&k| size[root(&mut parent, k)] >= MIN_RUN).map(|k| soft[k]).collect()
 }
 
 /// One region: a 4-connected run of one class.
@@ -174,7 +218,8 @@ pub fn regions(
         .map(|((a, b), (mut v, soft))| {
             let m = v.len() / 2;
             let step = *v.select_nth_unstable_by(m, f32::total_cmp).1;
-            Border { regions: [a, b], pairs: v.len(), step, soft }
+            let runs = runs(&soft, w);
+            Border { regions: [a, b], pairs: v.len(), step, soft, runs }
         })
         .collect();
     Regions { of_pixel, regions, borders }
@@ -272,10 +317,19 @@ pub fn merge_soft_regions(
         let mut join: Vec<Option<(u32, u8)>> = vec![None; r.regions.len()];
         // Seeds of the regions with picks that yield in part.
         let mut seeds: Vec<(u32, u8)> = Vec::new();
-        for b in r.borders.iter().filter(|b| b.pairs >= MIN_PAIRS && b.step < SOFT_STEP) {
+        for b in r.borders.iter().filter(|b| b.pairs >= MIN_PAIRS) {
             let pair = b.regions.map(|g| &r.regions[g as usize]);
             let Some(y) = yields(pair[0], pair[1], loss) else { continue };
             let into = pair[1 - y];
+            if b.step >= SOFT_STEP {
+                // A sharp border with a soft stretch: a region with picks yields the part
+                // beyond its sharpest line there (one without picks is paint on the evidence
+                // of its sharp border, and which side is altered is not known).
+                if pair[y].anchored {
+                    seeds.extend(b.runs.iter().map(|p| (p[y], into.class)));
+                }
+                continue;
+            }
             if pair[y].anchored {
                 seeds.extend(b.soft.iter().map(|p| (p[y], into.class)));
                 continue;
@@ -398,5 +452,47 @@ mod tests {
         );
         assert_eq!(labels[at(85, 22)], 0, "the faded core is red");
         assert_eq!(labels[at(15, 15)], 1, "the first chip too");
+    }
+
+    #[test]
+    fn a_stain_over_a_paint_edge_leaves_the_paint_and_the_edge() {
+        // A red band above slip with a sharp edge, and a stain on the slip that spreads from
+        // the edge: its core is red enough for the per-pixel rule and joins the band's region.
+        // The region's border is sharp along the band and soft only around the stain.
+        let (w, h) = (W, H);
+        let mut photo = LinearImage::new(w as u32, h as u32).unwrap();
+        let mut labels = vec![0u8; w * h];
+        let mut stain = vec![false; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let t = 1.0 + 0.01 * (((x * 7 + y * 13) % 5) as f64 - 2.0);
+                let colour = if y < 20 {
+                    RED
+                } else {
+                    let f = 0.8 * (-((x as f64 - 60.0).hypot(y as f64 - 24.0) / 8.0).powi(2)).exp();
+                    if f > 0.5 {
+                        stain[i] = true;
+                    }
+                    labels[i] = if f > 0.5 { 0 } else { 2 };
+                    [0, 1, 2].map(|j| SLIP[j] + f * (RED[j] - SLIP[j]))
+                };
+                photo.data[i] = colour.map(|c| (c * t) as f32);
+            }
+        }
+        assert!(stain.iter().filter(|&&s| s).count() > 50 && (0..w).any(|x| stain[20 * w + x]));
+        let typical: Vec<bool> = (0..w * h).map(|i| i < 20 * w).collect();
+        let before = labels.clone();
+        // Without picks in the band, the sharp border says it is paint: nothing yields.
+        let unpicked = vec![vec![], vec![], vec![at(10, 50)]];
+        merge_soft_regions(&photo, &mut labels, 3, &[RED, CLAY, SLIP], &unpicked, &typical, &[1]);
+        assert_eq!(labels, before);
+        // With picks, the stain beyond the band's edge is slip and the band stays red.
+        let picks = vec![vec![at(30, 5), at(90, 10)], vec![], vec![at(10, 50)]];
+        merge_soft_regions(&photo, &mut labels, 3, &[RED, CLAY, SLIP], &picks, &typical, &[1]);
+        for (i, &l) in labels.iter().enumerate() {
+            let want = if i < 20 * w { 0 } else { 2 };
+            assert_eq!(l, want, "({}, {})", i % w, i / w);
+        }
     }
 }
