@@ -89,6 +89,9 @@ pub enum EvalStep {
         /// alone).
         #[arg(long, default_value_t = restage_authoring::compensate::footprint::DEFAULT_ROUNDS)]
         footprint_rounds: u32,
+        /// Fraction of object points that may be dimmed on their own (as `compensate`'s).
+        #[arg(long, default_value_t = restage_authoring::compensate::DEFAULT_CLIP_FRACTION)]
+        clip_fraction: f64,
         /// Instead of the built-in scenes: a simulated capture, compensated with its true
         /// model and with `--stage` (what `calibrate` made of it), side by side.
         #[arg(long, requires = "stage")]
@@ -141,9 +144,20 @@ pub fn run(args: EvalArgs) -> Result<()> {
             let est = StageModel::load(stage)?;
             eval::transport::evaluate(&est, &truth)
         }
-        EvalStep::Compensate { seed, ebound_lux, m, margin, footprint_rounds, rig, capture, stage } => {
+        EvalStep::Compensate {
+            seed,
+            ebound_lux,
+            m,
+            margin,
+            footprint_rounds,
+            clip_fraction,
+            rig,
+            capture,
+            stage,
+        } => {
             let params = restage_authoring::compensate::Params {
                 footprint_rounds: *footprint_rounds,
+                clip_fraction: *clip_fraction,
                 ..restage_authoring::compensate::Params::new(*ebound_lux, *m, *margin)?
             };
             params.validate()?;

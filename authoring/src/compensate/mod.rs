@@ -125,6 +125,9 @@ pub struct Params {
 /// The most rounds of footprint-aware refinement accepted (each costs about what the draft does).
 pub const MAX_FOOTPRINT_ROUNDS: u32 = 64;
 
+/// Default share of object points that may be dimmed on their own ([`Params::clip_fraction`]).
+pub const DEFAULT_CLIP_FRACTION: f64 = 0.01;
+
 /// The lux meter's accuracy assumed unless told: a class-B illuminance meter. DIN 5032-7
 /// (1985 edition) sets the total error limits ("Gesamtfehler") of its classes L, A, B and C at
 /// 3 %, 5 %, 10 % and 20 % (the table as reproduced in the MX-Elektronik Minilux manual,
@@ -148,7 +151,7 @@ impl Params {
             m,
             margin,
             meter_accuracy: DEFAULT_METER_ACCURACY,
-            clip_fraction: 0.01,
+            clip_fraction: DEFAULT_CLIP_FRACTION,
             reduction: 2,
             footprint_rounds: footprint::DEFAULT_ROUNDS,
         };
@@ -257,6 +260,11 @@ pub struct Stats {
     /// they show lifted. A low bound lowers `s` while the black level stays.
     #[serde(default)]
     pub below_black: usize,
+    /// `[clip fraction, global scale]` at each of [`CLIP_CURVE`]: how bright the whole object
+    /// would be had another fraction of points been allowed to dim locally (empty in files
+    /// written before it was kept).
+    #[serde(default)]
+    pub scale_by_clip: Vec<[f64; 2]>,
 }
 
 /// The covered camera pixels (some weight) whose target at scale `scale` asks, in some
@@ -503,7 +511,10 @@ pub fn compensate_on(
         None => draft_cpu(stage, prep, target, params)?,
     };
     let refinement = footprint::refine(stage, prep, target, params, &mut draft);
-    let Draft { weights, mut frames, scale, covered, by_bound, by_sat } = draft;
+    let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve } = draft;
+    if let Some(note) = clip_tradeoff(&curve, params.clip_fraction, scale) {
+        tracing::info!("{note}");
+    }
     let unlit = Unlit::count(stage, &prep.geometry, target);
     let dark = below_black(stage, target, &weights, scale).len();
     if dark * 20 > covered {
@@ -583,6 +594,7 @@ pub fn compensate_on(
             refinement,
             unlit,
             below_black: dark,
+            scale_by_clip: curve,
         },
     })
 }
@@ -597,6 +609,8 @@ pub struct Draft {
     pub covered: usize,
     pub by_bound: usize,
     pub by_sat: usize,
+    /// `[clip fraction, scale]` at each of [`CLIP_CURVE`].
+    pub curve: Vec<[f64; 2]>,
 }
 
 /// `target` with every pixel outside `mask` (per camera pixel, row-major, true = object)
@@ -631,18 +645,68 @@ pub fn work_points(stage: &StageModel, geom: &Geometry, target: &LinearImage) ->
         .collect()
 }
 
+/// Clip fractions at which the global scale is also worked out and reported beside the one
+/// chosen ([`Stats::scale_by_clip`]): where a few percent of the object is chipped or
+/// stained, the points that need the most light are about that many, and the scale moves
+/// steeply with the fraction. Who chooses the fraction should see what it trades.
+pub const CLIP_CURVE: [f64; 6] = [0.0, 0.0025, 0.005, 0.01, 0.02, 0.05];
+
+/// The global scale chosen from every point's caps, and what it would be at other clip
+/// fractions.
+#[derive(Clone, Debug)]
+pub struct ScaleChoice {
+    pub scale: f64,
+    /// Points the bound limits below `scale`.
+    pub by_bound: usize,
+    /// Points a projector's saturation limits below `scale`.
+    pub by_sat: usize,
+    /// `[clip fraction, scale]` at each of [`CLIP_CURVE`].
+    pub curve: Vec<[f64; 2]>,
+}
+
+/// Where another clip fraction of [`Stats::scale_by_clip`] would change the whole object's
+/// brightness by a quarter or more (the next fraction down, or the first one up that does), a
+/// sentence saying so for whoever chooses the fraction; `None` where the scale is flat.
+pub fn clip_tradeoff(curve: &[[f64; 2]], clip_fraction: f64, scale: f64) -> Option<String> {
+    if scale <= 0.0 {
+        return None;
+    }
+    let below = curve.iter().rev().find(|c| c[0] < clip_fraction).filter(|c| c[1] / scale <= 0.8);
+    let above = curve.iter().find(|c| c[0] > clip_fraction && c[1] / scale >= 1.25);
+    let said: Vec<String> = [below, above]
+        .into_iter()
+        .flatten()
+        .map(|c| format!("{:.2} % would make it {:.2}x as bright", 100.0 * c[0], c[1] / scale))
+        .collect();
+    (!said.is_empty()).then(|| {
+        format!(
+            "at a clip fraction of {:.2} % the whole object's brightness is set by its hardest \
+             points (chips, stains, surface turned away): {}; a higher fraction dims more \
+             points on their own (--clip-fraction)",
+            100.0 * clip_fraction,
+            said.join(", "),
+        )
+    })
+}
+
 /// The global scale from every point's (bound, saturation) caps: the `clip_fraction`
-/// quantile of their minimum; and how many points each cap limits below it.
-pub fn global_scale(caps: &[(f64, f64)], clip_fraction: f64) -> (f64, usize, usize) {
+/// quantile of their minimum; how many points each cap limits below it; and the same
+/// quantile at each of [`CLIP_CURVE`].
+pub fn global_scale(caps: &[(f64, f64)], clip_fraction: f64) -> ScaleChoice {
     let covered = caps.len();
-    let mut per_point: Vec<f64> = caps.iter().map(|(b, s)| b.min(*s)).collect();
-    let q = ((clip_fraction * covered as f64).floor() as usize).min(covered - 1);
-    let (_, &mut s, _) = per_point.select_nth_unstable_by(q, f64::total_cmp);
-    let scale = if s.is_finite() { s.max(0.0) } else { 0.0 };
+    let mut per_point: Vec<f64> = caps.par_iter().map(|(b, s)| b.min(*s)).collect();
+    per_point.par_sort_unstable_by(f64::total_cmp);
+    let at = |fraction: f64| {
+        let q = ((fraction * covered as f64).floor() as usize).min(covered - 1);
+        let s = per_point[q];
+        if s.is_finite() { s.max(0.0) } else { 0.0 }
+    };
+    let scale = at(clip_fraction);
     let tol = 1.0 + 1e-9;
     let by_bound = caps.iter().filter(|(b, _)| b * tol < scale).count();
     let by_sat = caps.iter().filter(|(_, s)| s * tol < scale).count();
-    (scale, by_bound, by_sat)
+    let curve = CLIP_CURVE.iter().map(|&f| [f, at(f)]).collect();
+    ScaleChoice { scale, by_bound, by_sat, curve }
 }
 
 /// Per point, the light available under the bound (lux per channel, above the floor of its
@@ -756,7 +820,7 @@ pub fn draft_cpu(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: caps done");
-    let (scale, by_bound, by_sat) = global_scale(&caps, params.clip_fraction);
+    let ScaleChoice { scale, by_bound, by_sat, curve } = global_scale(&caps, params.clip_fraction);
 
     let demand = demands(stage, prep, target, &weights, scale, limit, &idx);
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: demand done");
@@ -811,7 +875,7 @@ pub fn draft_cpu(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: splat done (CPU)");
-    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat })
+    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat, curve })
 }
 
 #[cfg(test)]

@@ -415,3 +415,51 @@ fn points_darker_than_the_black_level_are_counted() {
     assert!(low.stats.scale < c.stats.scale);
     assert!(low.stats.below_black > covered_left, "{} at 120 lx", low.stats.below_black);
 }
+
+#[test]
+fn the_scale_at_other_clip_fractions_shows_what_a_few_hard_points_cost() {
+    // 1000 points: 30 hard ones (a chip needing ten times the light) can take a tenth of the
+    // scale the rest allow; saturation binds nowhere.
+    let caps: Vec<(f64, f64)> =
+        (0..1000).map(|i| (if i % 33 == 0 && i < 990 { 0.1 } else { 1.0 }, f64::INFINITY)).collect();
+    let hard = caps.iter().filter(|c| c.0 < 1.0).count();
+    assert_eq!(hard, 30);
+    let at = |f: f64| global_scale(&caps, f);
+    let chosen = at(0.01);
+    assert_eq!(chosen.scale, 0.1);
+    assert_eq!(chosen.by_bound, 0, "no point is below the scale its own cap sets");
+    assert_eq!(at(0.05).scale, 1.0);
+    assert_eq!(at(0.05).by_bound, 30);
+    // The curve is the same quantile at each listed fraction, whatever fraction was chosen.
+    for c in &chosen.curve {
+        assert_eq!(c[1], at(c[0]).scale, "fraction {}", c[0]);
+    }
+    assert!(chosen.curve.windows(2).all(|w| w[0][1] <= w[1][1]), "{:?}", chosen.curve);
+    // At 1 %, 0.5 % gives the same, 2 % too, 5 % ten times the brightness: that is said.
+    let note = clip_tradeoff(&chosen.curve, 0.01, chosen.scale).expect("5 % is brighter");
+    assert!(
+        note.contains("5.00 % would make it 10.00x as bright") && !note.contains("0.50 % would"),
+        "{note}"
+    );
+    // At 5 %, 2 % gives a tenth.
+    let five = at(0.05);
+    let note = clip_tradeoff(&five.curve, 0.05, five.scale).expect("2 % is dimmer");
+    assert!(note.contains("2.00 % would make it 0.10x as bright"), "{note}");
+    // Flat (every point alike): nothing to say.
+    let flat: Vec<(f64, f64)> = (0..1000).map(|_| (1.0, 2.0)).collect();
+    let f = global_scale(&flat, 0.01);
+    assert_eq!(clip_tradeoff(&f.curve, 0.01, f.scale), None);
+}
+
+#[test]
+fn compensation_reports_the_scale_at_every_listed_clip_fraction() {
+    let s = synthetic_stage(3, 11);
+    let t = target(&s, 1);
+    let p = Params::new(120.0, Exponent::Finite(8.0), 0.05).unwrap();
+    let c = compensate(&s.model, &t, &p).unwrap();
+    let curve = &c.stats.scale_by_clip;
+    assert_eq!(curve.iter().map(|c| c[0]).collect::<Vec<_>>(), CLIP_CURVE.to_vec());
+    let chosen = curve.iter().find(|e| e[0] == p.clip_fraction).expect("the default fraction is listed");
+    assert_eq!(chosen[1], c.stats.scale);
+    assert!(curve.windows(2).all(|w| w[0][1] <= w[1][1]), "{curve:?}");
+}

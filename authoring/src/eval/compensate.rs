@@ -397,6 +397,18 @@ pub fn visitor_view(
         comp.stats.limited_by_saturation as f64 / cov,
         "",
     ));
+    // The brightness the chosen clip fraction buys: the global scale, and at the other
+    // fractions as a ratio to it (the visitor's view is judged after the scale, so a dimmer
+    // object is not an error above; it is what the scale trades).
+    rows.push(Metric::info(STEP, &name("global scale"), comp.stats.scale, ""));
+    for c in &comp.stats.scale_by_clip {
+        rows.push(Metric::info(
+            STEP,
+            &name(&format!("global scale at clip fraction {} %, over the chosen", 100.0 * c[0])),
+            c[1] / comp.stats.scale,
+            "",
+        ));
+    }
     Ok(rows)
 }
 

@@ -284,7 +284,7 @@ impl Default for CompensateSettings {
             e_bound_lux: 150.0,
             m: Some(8.0),
             margin: 0.05,
-            clip_fraction: 0.01,
+            clip_fraction: restage_authoring::compensate::DEFAULT_CLIP_FRACTION,
             reduction: 2,
             device: "auto".into(),
         }
@@ -622,7 +622,7 @@ pub fn directional(az_deg: f64, el_deg: f64, strength: f64) -> Light {
 }
 
 /// A scene's light figures, from its `compensation.json`.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct SceneFigures {
     pub peak_lux: f64,
     pub limit_lux: f64,
@@ -630,6 +630,9 @@ pub struct SceneFigures {
     pub scale: f64,
     /// Fraction of the covered points whose target needed more light than the bound allows.
     pub limited_by_bound: f64,
+    /// Where another clip fraction would change the whole object's brightness by a quarter or
+    /// more, what it would be (`compensate::clip_tradeoff`).
+    pub clip_note: Option<String>,
 }
 
 impl SceneFigures {
@@ -641,6 +644,11 @@ impl SceneFigures {
             e_bound_lux: s.e_bound_lux,
             scale: t.scale,
             limited_by_bound: t.limited_by_bound as f64 / t.covered_points.max(1) as f64,
+            clip_note: restage_authoring::compensate::clip_tradeoff(
+                &t.scale_by_clip,
+                s.clip_fraction,
+                t.scale,
+            ),
         }
     }
 }

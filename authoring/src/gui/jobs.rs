@@ -402,6 +402,7 @@ impl Runner {
                     let scene = s.scene().expect("a compensation step");
                     let dir = p.comp_dir(scene);
                     let figures = SceneFigures::of(&restage_authoring::compensate::io::Summary::load(&dir)?);
+                    let scale = figures.scale;
                     send(Msg::Figures { scene, figures });
                     let heat = dir.join("report").join("irradiance.png");
                     send(Msg::Image {
@@ -412,7 +413,7 @@ impl Runner {
                         let linear = p.preview_file(scene).1;
                         let view = LinearImage::load(&linear)?;
                         // Exposure normalised by the global scale, as the demo's contact sheet.
-                        let gain = (1.0 / figures.scale.max(1e-9)) as f32;
+                        let gain = (1.0 / scale.max(1e-9)) as f32;
                         send(Msg::Image {
                             view: ViewKind::Visitor(scene),
                             image: Arc::new(rgba(view.to_srgb8(gain))),

@@ -146,7 +146,7 @@ fn a_parameter_change_reruns_only_what_depends_on_it() {
     assert_ne!(before[Path::new("comp/restored/proj0.png")], after[Path::new("comp/restored/proj0.png")]);
     let figures: Vec<_> = msgs
         .iter()
-        .filter_map(|m| if let Msg::Figures { figures, .. } = m { Some(*figures) } else { None })
+        .filter_map(|m| if let Msg::Figures { figures, .. } = m { Some(figures.clone()) } else { None })
         .collect();
     assert_eq!(figures.len(), 3);
     assert!(

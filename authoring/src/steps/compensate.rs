@@ -35,7 +35,7 @@ pub struct Args {
     #[arg(long, default_value_t = compensate::DEFAULT_METER_ACCURACY)]
     pub meter_accuracy: f64,
     /// Fraction of object points that may be dimmed locally rather than darkening everything.
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(long, default_value_t = compensate::DEFAULT_CLIP_FRACTION)]
     pub clip_fraction: f64,
     /// Camera pixels per light-certificate point along each axis.
     #[arg(long, default_value_t = 2)]

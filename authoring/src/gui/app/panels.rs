@@ -509,7 +509,10 @@ impl App {
         egui::Grid::new("figures").num_columns(3).show(ui, |ui| {
             for s in Scene::ALL {
                 if let Some(f) = self.jobs.figures.get(&s) {
-                    ui.label(s.id());
+                    let name = ui.label(s.id());
+                    if let Some(note) = &f.clip_note {
+                        name.on_hover_text(note);
+                    }
                     ui.label(format!("peak {:.1} lx", f.peak_lux));
                     ui.label(format!("≤ {:.1} lx", f.limit_lux));
                     ui.end_row();

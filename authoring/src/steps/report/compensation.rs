@@ -116,7 +116,7 @@ impl Page<'_> {
              <tr><th scope=\"row\">limited by the bound</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">limited by projector saturation</th><td class=\"n\">{} ({})</td></tr>\
              <tr><th scope=\"row\">darker than the black level and room light give (shown lifted)</th><td class=\"n\">{} ({})</td></tr>\
-             <tr><th scope=\"row\">clip fraction allowed</th><td class=\"n\">{}</td></tr>\
+             <tr><th scope=\"row\">clip fraction allowed</th><td class=\"n\">{}</td></tr>{}\
              <tr><th scope=\"row\">guarantee rounds, pixels dimmed</th><td class=\"n\">{}, {}</td></tr>{}{}\
              </tbody></table></div>",
             file(&format!("{}/compensation.json", s.dir)),
@@ -130,6 +130,26 @@ impl Page<'_> {
             st.below_black,
             pct(st.below_black as f64 / covered),
             pct(sm.clip_fraction),
+            // What another fraction would give (absent from figures written before it was kept).
+            if st.scale_by_clip.is_empty() || st.scale <= 0.0 {
+                String::new()
+            } else {
+                format!(
+                    "<tr><th scope=\"row\">global scale at other clip fractions (× this one)</th><td>{}{}</td></tr>",
+                    esc(&st
+                        .scale_by_clip
+                        .iter()
+                        .map(|c| format!("{}: {:.2}×", pct(c[0]), c[1] / st.scale))
+                        .collect::<Vec<_>>()
+                        .join(", ")),
+                    restage_authoring::compensate::clip_tradeoff(
+                        &st.scale_by_clip,
+                        sm.clip_fraction,
+                        st.scale
+                    )
+                    .map_or(String::new(), |n| format!("<br>{}", esc(&n)))
+                )
+            },
             st.rounds,
             st.dimmed_pixels,
             // Only where it ran: a model without measured footprints keeps the formula's frames.
