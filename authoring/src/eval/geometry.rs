@@ -144,10 +144,7 @@ pub const DARK_ALBEDO: f32 = 0.05;
 /// patterns' light, so its codes are the first to drown in noise. Per paint group, the worst
 /// projector's share of the truth's lit object pixels that `est` has a correspondence for.
 pub fn decoded_by_paint(est: &StageModel, truth: &StageModel, albedo: &[[f32; 3]]) -> Vec<Metric> {
-    let dark = |i: usize| {
-        let a = albedo[i];
-        0.2126 * a[0] + 0.7152 * a[1] + 0.0722 * a[2] < DARK_ALBEDO
-    };
+    let dark = |i: usize| crate::color::luminance(albedo[i].map(f64::from)) < f64::from(DARK_ALBEDO);
     let mut worst = [f64::INFINITY; 2];
     for (te, ee) in truth.correspondences.iter().zip(&est.correspondences) {
         let mut n = [[0usize; 2]; 2];
