@@ -463,3 +463,22 @@ fn compensation_reports_the_scale_at_every_listed_clip_fraction() {
     assert_eq!(chosen[1], c.stats.scale);
     assert!(curve.windows(2).all(|w| w[0][1] <= w[1][1]), "{curve:?}");
 }
+
+proptest! {
+    /// The scale and every entry of its curve are the plain quantile of the caps' minima, as
+    /// sorting them all would give (the selection orders only the low end).
+    #[test]
+    fn the_scale_is_the_quantile_of_the_caps(
+        caps in prop::collection::vec((0.0f64..10.0, 0.0f64..10.0), 1..400),
+        fraction in 0.0f64..0.5,
+    ) {
+        let mut sorted: Vec<f64> = caps.iter().map(|(b, s)| b.min(*s)).collect();
+        sorted.sort_by(f64::total_cmp);
+        let quantile = |f: f64| sorted[((f * caps.len() as f64).floor() as usize).min(caps.len() - 1)];
+        let got = global_scale(&caps, fraction);
+        prop_assert_eq!(got.scale, quantile(fraction));
+        for c in &got.curve {
+            prop_assert_eq!(c[1], quantile(c[0]));
+        }
+    }
+}
