@@ -689,6 +689,19 @@ pub fn clip_tradeoff(curve: &[[f64; 2]], clip_fraction: f64, scale: f64) -> Opti
     })
 }
 
+/// [`Stats::scale_by_clip`] for people, as ratios to the chosen `scale`: "0.00 %: 0.06×,
+/// 0.25 %: 0.55×, …" (empty where there is none, as in files written before it was kept).
+pub fn clip_curve_text(curve: &[[f64; 2]], scale: f64) -> String {
+    if scale <= 0.0 {
+        return String::new();
+    }
+    curve
+        .iter()
+        .map(|c| format!("{:.2} %: {:.2}×", 100.0 * c[0], c[1] / scale))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 /// The global scale from every point's (bound, saturation) caps: the `clip_fraction`
 /// quantile of their minimum; how many points each cap limits below it; and the same
 /// quantile at each of [`CLIP_CURVE`].

@@ -180,7 +180,7 @@ pub fn save(
 <tr><td>m</td><td>{m}</td></tr>
 <tr><td>peak recomputed irradiance (final 8-bit frames, certificate)</td><td>{peak:.2} lx</td></tr>
 <tr><td>black level + room light alone, peak</td><td>{black:.2} lx (room {room:.2} lx)</td></tr>
-<tr><td>global scale s</td><td>{scale:.5}</td></tr>
+<tr><td>global scale s</td><td>{scale:.5} at clip fraction {cf:.2} %{curve}</td></tr>
 <tr><td>covered object points</td><td>{cov}</td></tr>
 <tr><td>limited by the bound / by projector saturation</td><td>{bb} ({bbp:.2} %) / {bs} ({bsp:.2} %)</td></tr>
 <tr><td>darker than the black level and room light give (shown lifted)</td><td>{bbl} ({bblp:.2} %)</td></tr>
@@ -204,6 +204,18 @@ pub fn save(
         black = s.peak_black_lux,
         room = s.room_lux,
         scale = s.scale,
+        cf = 100.0 * params.clip_fraction,
+        // What other fractions would give, and a sentence where that is much (the scale
+        // moves steeply there).
+        curve = {
+            let text = super::clip_curve_text(&s.scale_by_clip, s.scale);
+            let note = super::clip_tradeoff(&s.scale_by_clip, params.clip_fraction, s.scale);
+            match (text.is_empty(), note) {
+                (true, _) => String::new(),
+                (false, None) => format!("; at other fractions, times this: {text}"),
+                (false, Some(n)) => format!("; at other fractions, times this: {text}<br>{n}"),
+            }
+        },
         cov = s.covered_points,
         bb = s.limited_by_bound,
         bbp = 100.0 * s.limited_by_bound as f64 / s.covered_points.max(1) as f64,

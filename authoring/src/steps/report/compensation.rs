@@ -136,12 +136,7 @@ impl Page<'_> {
             } else {
                 format!(
                     "<tr><th scope=\"row\">global scale at other clip fractions (× this one)</th><td>{}{}</td></tr>",
-                    esc(&st
-                        .scale_by_clip
-                        .iter()
-                        .map(|c| format!("{}: {:.2}×", pct(c[0]), c[1] / st.scale))
-                        .collect::<Vec<_>>()
-                        .join(", ")),
+                    esc(&restage_authoring::compensate::clip_curve_text(&st.scale_by_clip, st.scale)),
                     restage_authoring::compensate::clip_tradeoff(
                         &st.scale_by_clip,
                         sm.clip_fraction,
