@@ -92,6 +92,9 @@ pub enum EvalStep {
         /// Fraction of object points that may be dimmed on their own (as `compensate`'s).
         #[arg(long, default_value_t = restage_authoring::compensate::DEFAULT_CLIP_FRACTION)]
         clip_fraction: f64,
+        /// Let the model choose a larger clip fraction (as `compensate --auto-clip`).
+        #[arg(long)]
+        auto_clip: bool,
         /// Instead of the built-in scenes: a simulated capture, compensated with its true
         /// model and with `--stage` (what `calibrate` made of it), side by side.
         #[arg(long, requires = "stage")]
@@ -151,6 +154,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             margin,
             footprint_rounds,
             clip_fraction,
+            auto_clip,
             rig,
             capture,
             stage,
@@ -158,6 +162,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
             let params = restage_authoring::compensate::Params {
                 footprint_rounds: *footprint_rounds,
                 clip_fraction: *clip_fraction,
+                auto_clip: *auto_clip,
                 ..restage_authoring::compensate::Params::new(*ebound_lux, *m, *margin)?
             };
             params.validate()?;

@@ -104,7 +104,8 @@ pub fn save(
         m: params.m.to_string(),
         margin: params.margin,
         meter_accuracy: params.meter_accuracy,
-        clip_fraction: params.clip_fraction,
+        // The fraction the scale was taken at (the model's choice with `auto_clip`).
+        clip_fraction: comp.stats.clip_fraction,
         certificate_reduction: params.reduction,
         stats: comp.stats.clone(),
     };

@@ -115,6 +115,11 @@ pub struct Params {
     /// Fraction of object points that may be dimmed locally (below the global scale) so that
     /// a few hard points do not darken the whole object; 0 is the paper's pure global scale.
     pub clip_fraction: f64,
+    /// Let the model choose a larger fraction ([`AUTO_CLIP`], never less than
+    /// `clip_fraction`) where it predicts the visitor's view closer to the target: at a low
+    /// bound the projectors' black level and the room lift a dim object, and a brighter scale
+    /// with more points dimmed on their own shows it better.
+    pub auto_clip: bool,
     /// Camera pixels per light-certificate point along each axis (1 = every object point).
     pub reduction: u32,
     /// Rounds of footprint-aware refinement on the measured transport ([`footprint`]); 0 is
@@ -152,6 +157,7 @@ impl Params {
             margin,
             meter_accuracy: DEFAULT_METER_ACCURACY,
             clip_fraction: DEFAULT_CLIP_FRACTION,
+            auto_clip: false,
             reduction: 2,
             footprint_rounds: footprint::DEFAULT_ROUNDS,
         };
@@ -265,6 +271,10 @@ pub struct Stats {
     /// written before it was kept).
     #[serde(default)]
     pub scale_by_clip: Vec<[f64; 2]>,
+    /// The clip fraction the scale was taken at: `Params::clip_fraction`, or the one the model
+    /// chose ([`Params::auto_clip`]).
+    #[serde(default)]
+    pub clip_fraction: f64,
 }
 
 /// The covered camera pixels (some weight) whose target at scale `scale` asks, in some
@@ -511,8 +521,15 @@ pub fn compensate_on(
         None => draft_cpu(stage, prep, target, params)?,
     };
     let refinement = footprint::refine(stage, prep, target, params, &mut draft);
-    let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve } = draft;
-    if let Some(note) = clip_tradeoff(&curve, params.clip_fraction, scale) {
+    let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve, clip_fraction } = draft;
+    if params.auto_clip {
+        tracing::info!(
+            clip_fraction,
+            "clip fraction chosen by the modelled view (at least {:.2} %)",
+            100.0 * params.clip_fraction
+        );
+    }
+    if let Some(note) = clip_tradeoff(&curve, clip_fraction, scale) {
         tracing::info!("{note}");
     }
     let unlit = Unlit::count(stage, &prep.geometry, target);
@@ -595,6 +612,7 @@ pub fn compensate_on(
             unlit,
             below_black: dark,
             scale_by_clip: curve,
+            clip_fraction,
         },
     })
 }
@@ -611,6 +629,8 @@ pub struct Draft {
     pub by_sat: usize,
     /// `[clip fraction, scale]` at each of [`CLIP_CURVE`].
     pub curve: Vec<[f64; 2]>,
+    /// The clip fraction `scale` was taken at.
+    pub clip_fraction: f64,
 }
 
 /// `target` with every pixel outside `mask` (per camera pixel, row-major, true = object)
@@ -700,6 +720,83 @@ pub fn clip_curve_text(curve: &[[f64; 2]], scale: f64) -> String {
         .map(|c| format!("{:.2} %: {:.2}×", 100.0 * c[0], c[1] / scale))
         .collect::<Vec<_>>()
         .join(", ")
+}
+
+/// The clip fractions [`Params::auto_clip`] chooses from (those below the asked one are
+/// left out): the default and larger, never dimmer than the default.
+pub const AUTO_CLIP: [f64; 3] = [DEFAULT_CLIP_FRACTION, 0.02, 0.05];
+
+/// Most object points the modelled view is judged on per candidate (an even subsample
+/// beyond), so the choice costs little beside the draft.
+pub const AUTO_SAMPLES: usize = 1 << 16;
+
+/// The scale at `params.clip_fraction`, or with [`Params::auto_clip`] at the fraction of
+/// [`AUTO_CLIP`] whose modelled view ([`modelled_error`]) is closest to the target; and the
+/// fraction it was taken at. `idx`: the work points the caps belong to.
+pub fn choose_scale(
+    stage: &StageModel,
+    target: &LinearImage,
+    idx: &[u32],
+    caps: &[(f64, f64)],
+    params: &Params,
+) -> (ScaleChoice, f64) {
+    let asked = (global_scale(caps, params.clip_fraction), params.clip_fraction);
+    if !params.auto_clip {
+        return asked;
+    }
+    let judge = |c: &ScaleChoice| modelled_error(stage, target, idx, caps, c.scale);
+    let first = judge(&asked.0);
+    AUTO_CLIP
+        .iter()
+        .filter(|&&f| f > params.clip_fraction)
+        .map(|&f| (global_scale(caps, f), f))
+        .map(|c| (judge(&c.0), c))
+        // The first of equals: the smaller fraction.
+        .fold((first, asked), |best, next| if next.0 < best.0 { next } else { best })
+        .1
+}
+
+/// Mean CIEDE2000 between the target and the view the stage model predicts at global scale
+/// `scale`, after the scale (the visitor's eye adapts): a point whose cap is below the scale
+/// is dimmed to its cap, and no point shows darker than the black level and the room light
+/// it already has (`stage.ambient`). Blur is not modelled. Over an even subsample of at most
+/// [`AUTO_SAMPLES`] points, summed in order (independent of the thread count).
+pub fn modelled_error(
+    stage: &StageModel,
+    target: &LinearImage,
+    idx: &[u32],
+    caps: &[(f64, f64)],
+    scale: f64,
+) -> f64 {
+    if scale <= 0.0 || idx.is_empty() {
+        return f64::INFINITY;
+    }
+    let stride = idx.len().div_ceil(AUTO_SAMPLES).max(1);
+    let errors: Vec<f64> = (0..idx.len())
+        .into_par_iter()
+        .step_by(stride)
+        .map(|j| {
+            let i = idx[j] as usize;
+            let (t, a) = (target.data[i].map(|v| f64::from(v.max(0.0))), stage.ambient[i].map(f64::from));
+            let cap = caps[j].0.min(caps[j].1);
+            // Above its cap the point's light above black is cut by the factor that brings
+            // its tightest channel to the cap.
+            let f = if scale <= cap {
+                1.0
+            } else {
+                (0..3)
+                    .filter(|&c| scale * t[c] > a[c])
+                    .map(|c| ((cap * t[c] - a[c]) / (scale * t[c] - a[c])).max(0.0))
+                    .fold(1.0f64, f64::min)
+            };
+            let view: [f64; 3] = std::array::from_fn(|c| (a[c] + f * (scale * t[c] - a[c]).max(0.0)) / scale);
+            crate::color::ciede2000(
+                crate::color::linear_srgb_to_lab(view),
+                crate::color::linear_srgb_to_lab(t),
+            )
+        })
+        .collect();
+    errors.iter().sum::<f64>() / errors.len() as f64
 }
 
 /// The global scale from every point's (bound, saturation) caps: the `clip_fraction`
@@ -837,7 +934,8 @@ pub fn draft_cpu(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: caps done");
-    let ScaleChoice { scale, by_bound, by_sat, curve } = global_scale(&caps, params.clip_fraction);
+    let (ScaleChoice { scale, by_bound, by_sat, curve }, clip_fraction) =
+        choose_scale(stage, target, &idx, &caps, params);
 
     let demand = demands(stage, prep, target, &weights, scale, limit, &idx);
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: demand done");
@@ -892,7 +990,7 @@ pub fn draft_cpu(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: splat done (CPU)");
-    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat, curve })
+    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat, curve, clip_fraction })
 }
 
 #[cfg(test)]

@@ -204,12 +204,12 @@ pub fn save(
         black = s.peak_black_lux,
         room = s.room_lux,
         scale = s.scale,
-        cf = 100.0 * params.clip_fraction,
+        cf = 100.0 * s.clip_fraction,
         // What other fractions would give, and a sentence where that is much (the scale
         // moves steeply there).
         curve = {
             let text = super::clip_curve_text(&s.scale_by_clip, s.scale);
-            let note = super::clip_tradeoff(&s.scale_by_clip, params.clip_fraction, s.scale);
+            let note = super::clip_tradeoff(&s.scale_by_clip, s.clip_fraction, s.scale);
             match (text.is_empty(), note) {
                 (true, _) => String::new(),
                 (false, None) => format!("; at other fractions, times this: {text}"),

@@ -363,7 +363,7 @@ proptest! {
         let prep = Prepared::new(&s.model, 2).unwrap();
         let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
         let e_bound = black * bound_factor / ((1.0 - margin) * (1.0 - meter));
-        let p = Params { e_bound_lux: e_bound, m, margin, meter_accuracy: meter, clip_fraction: clip, reduction, footprint_rounds };
+        let p = Params { e_bound_lux: e_bound, m, margin, meter_accuracy: meter, clip_fraction: clip, auto_clip: false, reduction, footprint_rounds };
         let c = compensate(&s.model, &t, &p).unwrap();
         prop_assert!(c.stats.peak_lux <= p.limit());
         // The bundle's light model allows exactly the limit compensation held to.
@@ -461,7 +461,17 @@ fn compensation_reports_the_scale_at_every_listed_clip_fraction() {
     assert_eq!(curve.iter().map(|c| c[0]).collect::<Vec<_>>(), CLIP_CURVE.to_vec());
     let chosen = curve.iter().find(|e| e[0] == p.clip_fraction).expect("the default fraction is listed");
     assert_eq!(chosen[1], c.stats.scale);
+    assert_eq!(c.stats.clip_fraction, p.clip_fraction);
     assert!(curve.windows(2).all(|w| w[0][1] <= w[1][1]), "{curve:?}");
+    // With the model choosing, the fraction is one it may choose, its scale is the curve's,
+    // and the bound holds as at any scale.
+    let auto = Params { auto_clip: true, ..p.clone() };
+    let c = compensate(&s.model, &t, &auto).unwrap();
+    assert!(AUTO_CLIP.contains(&c.stats.clip_fraction), "{}", c.stats.clip_fraction);
+    let at = c.stats.scale_by_clip.iter().find(|e| e[0] == c.stats.clip_fraction).unwrap();
+    assert_eq!(at[1], c.stats.scale);
+    assert!(c.stats.peak_lux <= auto.limit());
+    assert!(true_peak(&s, &c.frames) <= auto.e_bound_lux);
 }
 
 proptest! {
@@ -481,4 +491,39 @@ proptest! {
             prop_assert_eq!(c[1], quantile(c[0]));
         }
     }
+}
+
+#[test]
+fn the_model_chooses_a_brighter_scale_only_where_the_black_level_lifts_the_view() {
+    let s = synthetic_stage(3, 11);
+    let mut model = s.model.clone();
+    let cam = &model.camera;
+    let mut grey = LinearImage::new(cam.width, cam.height).unwrap();
+    grey.data.iter_mut().for_each(|v| *v = [0.5; 3]);
+    let n = model.pixel_count();
+    let idx: Vec<u32> = (0..n as u32).collect();
+    // 4 % of the points can take only a tenth of the scale the rest can: 1 % and 2 % give
+    // 0.1, 5 % gives 1.
+    let caps: Vec<(f64, f64)> =
+        (0..n).map(|i| (if i % 25 == 0 { 0.1 } else { 1.0 }, f64::INFINITY)).collect();
+    let asked = Params { auto_clip: false, ..Params::new(50.0, Exponent::Finite(8.0), 0.05).unwrap() };
+    let auto = Params { auto_clip: true, ..asked.clone() };
+
+    // No black level, no room light: at 0.1 the view is the target everywhere; at 1 the hard
+    // points are dimmed. The asked fraction stays.
+    model.ambient.iter_mut().for_each(|a| *a = [0.0; 3]);
+    assert!(modelled_error(&model, &grey, &idx, &caps, 0.1) < 1e-9);
+    assert!(modelled_error(&model, &grey, &idx, &caps, 1.0) > 1.0);
+    assert_eq!(choose_scale(&model, &grey, &idx, &caps, &auto).1, 0.01);
+
+    // Black level and room light at 0.09: at scale 0.1 the grey's 0.05 is lifted to 0.09
+    // everywhere (the view shows 0.9 for 0.5); at 1 only the hard 4 % show wrong.
+    model.ambient.iter_mut().for_each(|a| *a = [0.09; 3]);
+    let (dim, bright) =
+        (modelled_error(&model, &grey, &idx, &caps, 0.1), modelled_error(&model, &grey, &idx, &caps, 1.0));
+    assert!(bright < 0.5 * dim, "bright {bright} dim {dim}");
+    let (choice, fraction) = choose_scale(&model, &grey, &idx, &caps, &auto);
+    assert_eq!((fraction, choice.scale), (0.05, 1.0));
+    // Without auto_clip the asked fraction is kept whatever the view.
+    assert_eq!(choose_scale(&model, &grey, &idx, &caps, &asked).1, 0.01);
 }

@@ -37,6 +37,11 @@ pub struct Args {
     /// Fraction of object points that may be dimmed locally rather than darkening everything.
     #[arg(long, default_value_t = compensate::DEFAULT_CLIP_FRACTION)]
     pub clip_fraction: f64,
+    /// Let the stage model choose a larger clip fraction (up to 5 %) where it predicts the
+    /// visitor's view closer to the target: at a low bound the black level lifts a dim object,
+    /// and a brighter one with more points dimmed on their own looks more like the target.
+    #[arg(long)]
+    pub auto_clip: bool,
     /// Camera pixels per light-certificate point along each axis.
     #[arg(long, default_value_t = 2)]
     pub reduction: u32,
@@ -135,6 +140,7 @@ pub fn params(args: &Args) -> Result<Params> {
         margin: args.margin,
         meter_accuracy: args.meter_accuracy,
         clip_fraction: args.clip_fraction,
+        auto_clip: args.auto_clip,
         reduction: args.reduction,
         footprint_rounds: args.footprint_rounds,
     };
