@@ -744,16 +744,22 @@ pub fn choose_scale(
     if !params.auto_clip {
         return asked;
     }
-    let judge = |c: &ScaleChoice| modelled_error(stage, target, idx, caps, c.scale);
-    let first = judge(&asked.0);
-    AUTO_CLIP
+    // Every candidate is on the curve (AUTO_CLIP is within CLIP_CURVE): its scale is read
+    // there, and only the winner's limited-point counts need another pass.
+    let at = |f: f64| {
+        asked.0.curve.iter().find(|c| c[0] == f).map_or_else(|| global_scale(caps, f).scale, |c| c[1])
+    };
+    let judge = |scale: f64| modelled_error(stage, target, idx, caps, scale);
+    let (_, best) = AUTO_CLIP
         .iter()
         .filter(|&&f| f > params.clip_fraction)
-        .map(|&f| (global_scale(caps, f), f))
-        .map(|c| (judge(&c.0), c))
+        .map(|&f| (judge(at(f)), f))
         // The first of equals: the smaller fraction.
-        .fold((first, asked), |best, next| if next.0 < best.0 { next } else { best })
-        .1
+        .fold(
+            (judge(asked.0.scale), params.clip_fraction),
+            |best, next| if next.0 < best.0 { next } else { best },
+        );
+    if best == params.clip_fraction { asked } else { (global_scale(caps, best), best) }
 }
 
 /// Mean CIEDE2000 between the target and the view the stage model predicts at global scale
