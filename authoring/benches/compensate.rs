@@ -38,6 +38,12 @@ fn bench(c: &mut Criterion) {
     g.bench_function("3 x 1400x1050 frames from 1600x1200", |b| {
         b.iter(|| compensate_prepared(&s.model, &prep, &target, &params).unwrap())
     });
+    // With the model choosing the clip fraction: up to three fractions compensated in full and
+    // the modelled view of each judged.
+    let auto = Params { auto_clip: true, ..params.clone() };
+    g.bench_function("3 x 1400x1050 frames from 1600x1200, auto clip", |b| {
+        b.iter(|| compensate_prepared(&s.model, &prep, &target, &auto).unwrap())
+    });
     g.bench_function("per-pixel part only (CPU draft, before the guarantee)", |b| {
         b.iter(|| draft_cpu(&s.model, &prep, &target, &params).unwrap())
     });

@@ -114,6 +114,73 @@ fn bilinear(out: &[[f32; 3]], w: usize, h: usize, c: [f32; 2]) -> [f32; 3] {
     })
 }
 
+/// Relative outputs above black of each projector's 8-bit frame, per pixel.
+fn outputs(stage: &StageModel, frames: &[RgbImage]) -> Vec<Vec<[f32; 3]>> {
+    frames
+        .iter()
+        .zip(&stage.projectors)
+        .map(|(f, p)| f.pixels().map(|q| std::array::from_fn(|c| p.response[c][q.0[c] as usize])).collect())
+        .collect()
+}
+
+/// The light the outputs `out` give camera pixel `i` above black, in units of the gain (what
+/// [`demands`] asks for): per projector its coefficient times the output through the pixel's
+/// measured footprint (`cols`; empty when none was measured) or, where none is, at its
+/// correspondence, as the formula assumes.
+fn delivered(
+    stage: &StageModel,
+    geom: &super::geometry::Geometry,
+    cols: &[Columns],
+    out: &[Vec<[f32; 3]>],
+    i: usize,
+) -> [f32; 3] {
+    let kn = geom.projectors;
+    let mut e = [0.0f32; 3];
+    for (k, out) in out.iter().enumerate() {
+        let eta = geom.eta[i * kn + k];
+        if eta <= 0.0 {
+            continue;
+        }
+        match cols.get(k).filter(|col| col.measured(i)) {
+            Some(col) => {
+                for a in col.start[i] as usize..col.start[i + 1] as usize {
+                    let o = out[col.pixel[a] as usize];
+                    let w = col.weight[a] * eta;
+                    (0..3).for_each(|c| e[c] += w * o[c]);
+                }
+            }
+            None => {
+                let p = &stage.projectors[k];
+                let o = bilinear(out, p.width as usize, p.height as usize, geom.coord[i * kn + k]);
+                (0..3).for_each(|c| e[c] += eta * o[c]);
+            }
+        }
+    }
+    e
+}
+
+/// What the stage model says the camera sees at each of the points `idx` when the projectors
+/// show `frames`: black level and room light (`stage.ambient`) plus the gain times the
+/// delivered light, blurred through the measured footprints where the model has them.
+pub fn modelled_view(stage: &StageModel, prep: &Prepared, frames: &[RgbImage], idx: &[u32]) -> Vec<[f64; 3]> {
+    let geom = &prep.geometry;
+    let cols: Vec<Columns> = if has_footprints(stage) {
+        (0..geom.projectors).into_par_iter().map(|k| columns(stage, prep, k)).collect()
+    } else {
+        Vec::new()
+    };
+    let out = outputs(stage, frames);
+    idx.par_iter()
+        .map(|&i| {
+            let i = i as usize;
+            let e = delivered(stage, geom, &cols, &out, i);
+            std::array::from_fn(|c| {
+                f64::from(stage.ambient[i][c]) + f64::from(stage.gain[i][c]) * f64::from(e[c])
+            })
+        })
+        .collect()
+}
+
 /// Whether every projector has a measured transport of its size.
 pub fn has_footprints(stage: &StageModel) -> bool {
     stage.projectors.iter().zip(&stage.transport).all(|(p, t)| {
@@ -145,13 +212,7 @@ pub fn refine(
         want[i as usize] = d.map(|v| v as f32);
     }
     let cols: Vec<Columns> = (0..kn).into_par_iter().map(|k| columns(stage, prep, k)).collect();
-    // Relative outputs above black, from the draft's 8-bit values.
-    let mut out: Vec<Vec<[f32; 3]>> = (0..kn)
-        .map(|k| {
-            let r = &stage.projectors[k].response;
-            draft.frames[k].pixels().map(|p| std::array::from_fn(|c| r[c][p.0[c] as usize])).collect()
-        })
-        .collect();
+    let mut out = outputs(stage, &draft.frames);
 
     // Per camera pixel, demand minus the light the footprints say the outputs give.
     let residual = |out: &[Vec<[f32; 3]>]| -> Vec<[f32; 3]> {
@@ -161,25 +222,7 @@ pub fn refine(
                 if want[i][0].is_nan() {
                     return [0.0; 3];
                 }
-                let mut e = [0.0f32; 3];
-                for (k, col) in cols.iter().enumerate() {
-                    let eta = geom.eta[i * kn + k];
-                    if eta <= 0.0 {
-                        continue;
-                    }
-                    if !col.measured(i) {
-                        let p = &stage.projectors[k];
-                        let o =
-                            bilinear(&out[k], p.width as usize, p.height as usize, geom.coord[i * kn + k]);
-                        (0..3).for_each(|c| e[c] += eta * o[c]);
-                        continue;
-                    }
-                    for a in col.start[i] as usize..col.start[i + 1] as usize {
-                        let o = out[k][col.pixel[a] as usize];
-                        let w = col.weight[a] * eta;
-                        (0..3).for_each(|c| e[c] += w * o[c]);
-                    }
-                }
+                let e = delivered(stage, geom, &cols, out, i);
                 std::array::from_fn(|c| want[i][c] - e[c])
             })
             .collect()

@@ -8,7 +8,7 @@ use bytemuck::{Pod, Zeroable};
 use image::RgbImage;
 use rayon::prelude::*;
 
-use super::{CompensateError, Draft, Params, Prepared, ScaleChoice, choose_scale, work_points};
+use super::{CompensateError, Draft, Params, Prepared, ScaleChoice, global_scale, work_points};
 use crate::gpu::Gpu;
 use crate::imgio::LinearImage;
 use crate::stage_model::StageModel;
@@ -166,8 +166,8 @@ pub fn draft(
     let caps: Vec<[f32; 2]> = gpu.read(&b_caps, covered)?;
     let caps: Vec<(f64, f64)> =
         caps.iter().map(|c| (c[0] as f64, c[1] as f64)).map(|(b, s)| (unbig(b), unbig(s))).collect();
-    let (ScaleChoice { scale, by_bound, by_sat, curve }, clip_fraction) =
-        choose_scale(stage, target, &idx, &caps, params);
+    let ScaleChoice { scale, by_bound, by_sat, curve } = global_scale(&caps, params.clip_fraction);
+    let clip_fraction = params.clip_fraction;
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, scale, "compensate (GPU): caps done");
 
     // Pass 2 and 3, projector by projector: demand and splat, then average and quantise.

@@ -516,19 +516,62 @@ pub fn compensate_on(
         });
     }
     let t0 = std::time::Instant::now();
-    let mut draft = match crate::gpu::select(device)? {
-        Some(g) => gpu::draft(g, stage, prep, target, params)?,
-        None => draft_cpu(stage, prep, target, params)?,
+    let device = crate::gpu::select(device)?;
+    // Draft, refinement, and the guarantee on the 8-bit frames (fix 3), at one clip fraction.
+    let frames_at = |clip_fraction: f64| -> Result<Candidate, CompensateError> {
+        let p = Params { clip_fraction, auto_clip: false, ..params.clone() };
+        let mut draft = match device {
+            Some(g) => gpu::draft(g, stage, prep, target, &p)?,
+            None => draft_cpu(stage, prep, target, &p)?,
+        };
+        let refinement = footprint::refine(stage, prep, target, &p, &mut draft);
+        // Light that would land where the model cannot bound it stays dark.
+        let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut draft.frames);
+        tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: draft done");
+        let enf = guarantee::enforce(cert, &prep.inverse, &prep.floor, &mut draft.frames, limit);
+        tracing::debug!(
+            ms = t0.elapsed().as_secs_f64() * 1e3,
+            rounds = enf.rounds,
+            "compensate: guarantee done"
+        );
+        Ok(Candidate { draft, refinement, unseen_dark, enf })
     };
-    let refinement = footprint::refine(stage, prep, target, params, &mut draft);
-    let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve, clip_fraction } = draft;
-    if params.auto_clip {
+    let Candidate { draft, refinement, unseen_dark, enf } = if params.auto_clip {
+        // Each fraction compensated in full, and the stage model's view of its final frames
+        // (blur, local dimming, the guarantee, black level) judged against the target.
+        let idx = work_points(stage, &prep.geometry, target);
+        let sample: Vec<u32> = idx.iter().step_by(idx.len().div_ceil(AUTO_SAMPLES).max(1)).copied().collect();
+        let judged = |f: f64| -> Result<(f64, Candidate), CompensateError> {
+            let c = frames_at(f)?;
+            let view = footprint::modelled_view(stage, prep, &c.draft.frames, &sample);
+            let error = view_error(target, &sample, &view, c.draft.scale);
+            tracing::info!(
+                clip_fraction = f,
+                scale = c.draft.scale,
+                modelled_delta_e = error,
+                "auto clip: candidate"
+            );
+            Ok((error, c))
+        };
+        let mut best = judged(params.clip_fraction)?;
+        for f in AUTO_CLIP.iter().copied().filter(|&f| f > params.clip_fraction) {
+            let next = judged(f)?;
+            // The first of equals: the smaller fraction.
+            if next.0 < best.0 {
+                best = next;
+            }
+        }
+        let c = best.1;
         tracing::info!(
-            clip_fraction,
+            clip_fraction = c.draft.clip_fraction,
             "clip fraction chosen by the modelled view (at least {:.2} %)",
             100.0 * params.clip_fraction
         );
-    }
+        c
+    } else {
+        frames_at(params.clip_fraction)?
+    };
+    let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve, clip_fraction } = draft;
     if let Some(note) = clip_tradeoff(&curve, clip_fraction, scale) {
         tracing::info!("{note}");
     }
@@ -542,13 +585,6 @@ pub fn compensate_on(
             100.0 * dark as f64 / covered.max(1) as f64
         );
     }
-    // Light that would land where the model cannot bound it stays dark.
-    let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut frames);
-
-    // Fix 3: the guarantee, on the final 8-bit frames.
-    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: draft done");
-    let enf = guarantee::enforce(cert, &prep.inverse, &prep.floor, &mut frames, limit);
-    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, rounds = enf.rounds, "compensate: guarantee done");
     let lux: Vec<f64> = cert
         .point_of_pixel
         .iter()
@@ -615,6 +651,15 @@ pub fn compensate_on(
             clip_fraction,
         },
     })
+}
+
+/// One clip fraction's compensation up to the guarantee: its draft (frames refined, unseen
+/// light darkened, the guarantee enforced), and what those steps did.
+struct Candidate {
+    draft: Draft,
+    refinement: Option<footprint::Refinement>,
+    unseen_dark: usize,
+    enf: guarantee::Enforcement,
 }
 
 /// Compensation before the guarantee: the weights, the global scale and the frames as
@@ -727,77 +772,25 @@ pub fn clip_curve_text(curve: &[[f64; 2]], scale: f64) -> String {
 pub const AUTO_CLIP: [f64; 3] = [DEFAULT_CLIP_FRACTION, 0.02, 0.05];
 
 /// Most object points the modelled view is judged on per candidate (an even subsample
-/// beyond), so the choice costs little beside the draft.
+/// beyond), so the choice costs little beside compensating.
 pub const AUTO_SAMPLES: usize = 1 << 16;
 
-/// The scale at `params.clip_fraction`, or with [`Params::auto_clip`] at the fraction of
-/// [`AUTO_CLIP`] whose modelled view ([`modelled_error`]) is closest to the target; and the
-/// fraction it was taken at. `idx`: the work points the caps belong to.
-pub fn choose_scale(
-    stage: &StageModel,
-    target: &LinearImage,
-    idx: &[u32],
-    caps: &[(f64, f64)],
-    params: &Params,
-) -> (ScaleChoice, f64) {
-    let asked = (global_scale(caps, params.clip_fraction), params.clip_fraction);
-    if !params.auto_clip {
-        return asked;
-    }
-    // Every candidate is on the curve (AUTO_CLIP is within CLIP_CURVE): its scale is read
-    // there, and only the winner's limited-point counts need another pass.
-    let at = |f: f64| {
-        asked.0.curve.iter().find(|c| c[0] == f).map_or_else(|| global_scale(caps, f).scale, |c| c[1])
-    };
-    let judge = |scale: f64| modelled_error(stage, target, idx, caps, scale);
-    let (_, best) = AUTO_CLIP
-        .iter()
-        .filter(|&&f| f > params.clip_fraction)
-        .map(|&f| (judge(at(f)), f))
-        // The first of equals: the smaller fraction.
-        .fold(
-            (judge(asked.0.scale), params.clip_fraction),
-            |best, next| if next.0 < best.0 { next } else { best },
-        );
-    if best == params.clip_fraction { asked } else { (global_scale(caps, best), best) }
-}
-
-/// Mean CIEDE2000 between the target and the view the stage model predicts at global scale
-/// `scale`, after the scale (the visitor's eye adapts): a point whose cap is below the scale
-/// is dimmed to its cap, and no point shows darker than the black level and the room light
-/// it already has (`stage.ambient`). Blur is not modelled. Over an even subsample of at most
-/// [`AUTO_SAMPLES`] points, summed in order (independent of the thread count).
-pub fn modelled_error(
-    stage: &StageModel,
-    target: &LinearImage,
-    idx: &[u32],
-    caps: &[(f64, f64)],
-    scale: f64,
-) -> f64 {
+/// Mean CIEDE2000 between the target and `view` (what the stage model says the camera sees at
+/// the points `idx`, [`footprint::modelled_view`]) divided by the global scale `scale`: the
+/// visitor's eye adapts to the overall brightness, so what counts is how the light follows
+/// the target, lifted by the black level where the target is darker, dimmed where a point
+/// could not take the scale. Summed in order (independent of the thread count).
+pub fn view_error(target: &LinearImage, idx: &[u32], view: &[[f64; 3]], scale: f64) -> f64 {
     if scale <= 0.0 || idx.is_empty() {
         return f64::INFINITY;
     }
-    let stride = idx.len().div_ceil(AUTO_SAMPLES).max(1);
-    let errors: Vec<f64> = (0..idx.len())
-        .into_par_iter()
-        .step_by(stride)
-        .map(|j| {
-            let i = idx[j] as usize;
-            let (t, a) = (target.data[i].map(|v| f64::from(v.max(0.0))), stage.ambient[i].map(f64::from));
-            let cap = caps[j].0.min(caps[j].1);
-            // Above its cap the point's light above black is cut by the factor that brings
-            // its tightest channel to the cap.
-            let f = if scale <= cap {
-                1.0
-            } else {
-                (0..3)
-                    .filter(|&c| scale * t[c] > a[c])
-                    .map(|c| ((cap * t[c] - a[c]) / (scale * t[c] - a[c])).max(0.0))
-                    .fold(1.0f64, f64::min)
-            };
-            let view: [f64; 3] = std::array::from_fn(|c| (a[c] + f * (scale * t[c] - a[c]).max(0.0)) / scale);
+    let errors: Vec<f64> = idx
+        .par_iter()
+        .zip(view)
+        .map(|(&i, v)| {
+            let t = target.data[i as usize].map(|v| f64::from(v.max(0.0)));
             crate::color::ciede2000(
-                crate::color::linear_srgb_to_lab(view),
+                crate::color::linear_srgb_to_lab(v.map(|v| v / scale)),
                 crate::color::linear_srgb_to_lab(t),
             )
         })
@@ -940,8 +933,8 @@ pub fn draft_cpu(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: caps done");
-    let (ScaleChoice { scale, by_bound, by_sat, curve }, clip_fraction) =
-        choose_scale(stage, target, &idx, &caps, params);
+    let ScaleChoice { scale, by_bound, by_sat, curve } = global_scale(&caps, params.clip_fraction);
+    let clip_fraction = params.clip_fraction;
 
     let demand = demands(stage, prep, target, &weights, scale, limit, &idx);
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: demand done");
