@@ -273,6 +273,8 @@ pub struct CompensateSettings {
     pub m: Option<f64>,
     pub margin: f64,
     pub clip_fraction: f64,
+    /// `--auto-clip`: the stage model may choose a larger clip fraction.
+    pub auto_clip: bool,
     pub reduction: u32,
     /// `auto`, `cpu` or `gpu`.
     pub device: String,
@@ -285,6 +287,7 @@ impl Default for CompensateSettings {
             m: Some(8.0),
             margin: 0.05,
             clip_fraction: restage_authoring::compensate::DEFAULT_CLIP_FRACTION,
+            auto_clip: false,
             reduction: 2,
             device: "auto".into(),
         }

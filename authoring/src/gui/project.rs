@@ -528,6 +528,9 @@ impl Project {
                     "--out".into(),
                     comp.clone(),
                 ]];
+                if c.auto_clip {
+                    lines[0].push("--auto-clip".into());
+                }
                 if let Some(m) = self.mask_file(small) {
                     lines[0].extend(["--mask".into(), p(&m)]);
                     // Compensating the photo needs no classification: make the mask here
