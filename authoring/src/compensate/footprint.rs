@@ -14,6 +14,9 @@
 //! the limit (`caps`), and the refinement never leaves the guarantee more to dim than the
 //! formula did. The guarantee is still enforced on the result as on any frames: the bound
 //! holds whatever the refinement does.
+//!
+//! The same light model predicts what the camera sees from any frames ([`modelled_view`]):
+//! `--auto-clip` judges each candidate clip fraction's final frames by it.
 
 use image::RgbImage;
 use rayon::prelude::*;
