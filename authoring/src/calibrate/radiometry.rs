@@ -281,8 +281,17 @@ impl ResponseBuilder {
 
 /// A monotonic 256-entry response from measured `(level, relative output)` points: values
 /// clamped to 0..=1, pooled to be non-decreasing (pool-adjacent-violators), interpolated with
-/// monotone cubic Hermite splines (Fritsch–Carlson), then made strictly increasing so it can be
-/// inverted. `r[0] = 0` and `r[255] = 1` by definition (outputs are relative to full above black).
+/// monotone cubic Hermite splines (Fritsch–Carlson) in log level against log output, then made
+/// strictly increasing so it can be inverted. `r[0] = 0` and `r[255] = 1` by definition
+/// (outputs are relative to full above black).
+///
+/// Why log-log: a projector's response is close to a power law (a display gamma), which is a
+/// straight line there, while a curve through the measured values themselves is nearly
+/// straight between 0 and the first ramp level and reads the dark end several times too bright
+/// (level 8 of a 2.2 gamma from levels 0, 32, ...: 4x). At a low light bound most frame values
+/// are in that stretch. Below the lowest level measured above zero the curve continues as the
+/// power law of the first measured stretch (its exponent at least 1: no display is brighter
+/// near black than a straight line to it).
 pub fn fit_response(points: &[(u8, f32)]) -> Vec<f32> {
     let mut pts: BTreeMap<u8, (f64, f64)> = BTreeMap::new();
     for &(l, v) in points {
@@ -310,7 +319,24 @@ pub fn fit_response(points: &[(u8, f32)]) -> Vec<f32> {
     }
     let xs: Vec<f64> = blocks.iter().flat_map(|b| b.2.iter().map(|&l| l as f64)).collect();
     let ys: Vec<f64> = blocks.iter().flat_map(|b| std::iter::repeat_n(b.0 / b.1, b.2.len())).collect();
-    let mut r = monotone_cubic(&xs, &ys);
+    // The log-log curve starts at the lowest level with a positive output (255 always has 1).
+    let first = (1..xs.len()).find(|&i| ys[i] > 0.0).expect("255 is measured as 1");
+    let (lx, ly): (Vec<f64>, Vec<f64>) =
+        xs[first..].iter().zip(&ys[first..]).map(|(x, y)| (x.ln(), y.ln())).unzip();
+    let x0 = xs[first];
+    let mut r: Vec<f64> = if lx.len() < 2 {
+        // Nothing measured above black below full: a straight line from the last level
+        // measured as black.
+        let z = xs[first - 1];
+        (0..256).map(|v| ((v as f64 - z) / (255.0 - z)).max(0.0)).collect()
+    } else {
+        let exponent = ((ly[1] - ly[0]) / (lx[1] - lx[0])).max(1.0);
+        let upper = monotone_cubic(&lx, &ly, (x0 as usize..256).map(|v| (v as f64).ln()));
+        (0..x0 as usize)
+            .map(|v| ys[first] * (v as f64 / x0).powf(exponent))
+            .chain(upper.into_iter().map(f64::exp))
+            .collect()
+    };
     // Strictly increasing, then renormalised so the ends stay exactly 0 and 1.
     let eps = 1e-6;
     for i in 1..256 {
@@ -323,8 +349,8 @@ pub fn fit_response(points: &[(u8, f32)]) -> Vec<f32> {
 }
 
 /// Fritsch–Carlson monotone cubic interpolation of sorted, non-decreasing points, evaluated at
-/// the integer levels 0..=255.
-fn monotone_cubic(xs: &[f64], ys: &[f64]) -> Vec<f64> {
+/// `at` (at least two points).
+fn monotone_cubic(xs: &[f64], ys: &[f64], at: impl Iterator<Item = f64>) -> Vec<f64> {
     let n = xs.len();
     let delta: Vec<f64> = (0..n - 1).map(|i| (ys[i + 1] - ys[i]) / (xs[i + 1] - xs[i])).collect();
     let mut m = vec![0.0; n];
@@ -347,22 +373,20 @@ fn monotone_cubic(xs: &[f64], ys: &[f64]) -> Vec<f64> {
             m[i + 1] = t * b * delta[i];
         }
     }
-    (0..256)
-        .map(|v| {
-            let x = v as f64;
-            let i = match xs.partition_point(|&xi| xi <= x) {
-                0 => 0,
-                k => (k - 1).min(n - 2),
-            };
-            let h = xs[i + 1] - xs[i];
-            let t = (x - xs[i]) / h;
-            let (t2, t3) = (t * t, t * t * t);
-            (2.0 * t3 - 3.0 * t2 + 1.0) * ys[i]
-                + (t3 - 2.0 * t2 + t) * h * m[i]
-                + (-2.0 * t3 + 3.0 * t2) * ys[i + 1]
-                + (t3 - t2) * h * m[i + 1]
-        })
-        .collect()
+    at.map(|x| {
+        let i = match xs.partition_point(|&xi| xi <= x) {
+            0 => 0,
+            k => (k - 1).min(n - 2),
+        };
+        let h = xs[i + 1] - xs[i];
+        let t = (x - xs[i]) / h;
+        let (t2, t3) = (t * t, t * t * t);
+        (2.0 * t3 - 3.0 * t2 + 1.0) * ys[i]
+            + (t3 - 2.0 * t2 + t) * h * m[i]
+            + (-2.0 * t3 + 3.0 * t2) * ys[i + 1]
+            + (t3 - t2) * h * m[i + 1]
+    })
+    .collect()
 }
 
 /// The fractional 8-bit input that gives relative output `y` on a strictly increasing
@@ -541,6 +565,24 @@ mod tests {
             assert!(e < 0.003, "channel {c}: max error {e}");
         }
         assert!(r.max_leakage() < 0.01, "{:?}", r.leakage);
+    }
+
+    /// At a low light bound most frame values lie below the first ramp level: the curve must
+    /// hold its shape there in relative terms, not only within a hundredth of full output.
+    #[test]
+    fn the_dark_end_below_the_first_ramp_level_keeps_its_relative_output() {
+        let levels: Vec<u8> = crate::patterns::ramp_levels(9);
+        let (b, truth) = scene(&levels, 0.002, 0.0);
+        let r = b.finish().unwrap();
+        // Power laws (2.2, 1.8) within 5 % down to level 4. A curve half linear, half gamma
+        // bends towards a straight line near black, which a power law does not follow:
+        // within 10 % from level 16 (at level 4 it reads 20 % dark; README, "Compensation").
+        for (c, from, tolerance) in [(0, 4, 0.05), (1, 4, 0.05), (2, 16, 0.10)] {
+            for v in [4usize, 8, 16, 24, 40].into_iter().filter(|&v| v >= from) {
+                let rel = r.response[c][v] / truth[c][v] - 1.0;
+                assert!(rel.abs() < tolerance, "channel {c}, level {v}: {:+.0} %", 100.0 * rel);
+            }
+        }
     }
 
     #[test]

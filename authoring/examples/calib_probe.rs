@@ -1,0 +1,93 @@
+//! Which part of a calibrated stage model costs the visitor's view (README, "Compensation"):
+//! the calibrated model of a simulated capture compensated as it is, then with one part at a
+//! time replaced by the virtual stage's truth (room light and black level per pixel, gains,
+//! projector responses, black levels, lux), each judged with the capture's true physics
+//! (formula, m = 8). Also prints the calibrated responses against the true ones at the dark end.
+//!
+//! `cargo run --release -p restage-authoring --example calib_probe -- CAPTURE STAGE [E_BOUND]`
+//! (default 50 lx; about 15 s a row at 800x600).
+
+use restage_authoring::compensate::{Exponent, Params, Prepared};
+use restage_authoring::eval::compensate::{pristine_target, visitor_view};
+use restage_authoring::stage_model::StageModel;
+use restage_authoring::stage_sim::{VirtualStage, load_config};
+use std::path::PathBuf;
+
+type Swap = Box<dyn Fn(&mut StageModel, &StageModel)>;
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let [capture, stage_dir] = [0, 1].map(|i| args.get(i).map(PathBuf::from));
+    let (Some(capture), Some(stage_dir)) = (capture, stage_dir) else {
+        anyhow::bail!("usage: calib_probe CAPTURE STAGE [E_BOUND]");
+    };
+    let bound: f64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(50.0);
+    let stage = VirtualStage::new(&load_config(&capture)?)?;
+    let truth = stage.truth();
+    let calibrated = StageModel::load(&stage_dir)?;
+    let target = pristine_target(&stage);
+    let params = Params { footprint_rounds: 0, ..Params::new(bound, Exponent::Finite(8.0), 0.05)? };
+
+    println!("relative output at the dark end, calibrated / true (red channel):");
+    for (k, (c, t)) in calibrated.projectors.iter().zip(&truth.projectors).enumerate() {
+        let row: Vec<String> = [4, 8, 16, 32, 64]
+            .iter()
+            .map(|&v| format!("{v}: {:.5} / {:.5}", c.response[0][v], t.response[0][v]))
+            .collect();
+        println!("  projector {k}: {}", row.join(", "));
+    }
+
+    // Per camera pixel the model reconstructed, the truth's value replaces the calibrated one.
+    let per_pixel = |m: &mut StageModel, t: &StageModel, gain: bool, ambient: bool| {
+        for i in 0..m.points.len() {
+            if m.points[i][0].is_finite() {
+                if gain {
+                    m.gain[i] = t.gain[i];
+                }
+                if ambient {
+                    m.ambient[i] = t.ambient[i];
+                }
+            }
+        }
+    };
+    let variants: Vec<(&str, Swap)> = vec![
+        ("calibrated", Box::new(|_, _| {})),
+        ("true room light and black level per pixel", Box::new(move |m, t| per_pixel(m, t, false, true))),
+        ("true gains", Box::new(move |m, t| per_pixel(m, t, true, false))),
+        (
+            "true responses",
+            Box::new(|m, t| {
+                m.projectors.iter_mut().zip(&t.projectors).for_each(|(p, q)| p.response = q.response.clone())
+            }),
+        ),
+        (
+            "true projector black levels",
+            Box::new(|m, t| m.projectors.iter_mut().zip(&t.projectors).for_each(|(p, q)| p.black = q.black)),
+        ),
+        (
+            "true lux and vignetting",
+            Box::new(|m, t| {
+                for (p, q) in m.projectors.iter_mut().zip(&t.projectors) {
+                    p.lux_at_1m = q.lux_at_1m;
+                    p.vignetting = q.vignetting.clone();
+                }
+            }),
+        ),
+    ];
+    println!("{bound} lx, formula: CIEDE2000 mean / p95 on covered pixels, in chips, in their rings");
+    for (name, swap) in variants {
+        let mut model = calibrated.clone();
+        swap(&mut model, &truth);
+        let prep = Prepared::new(&model, params.reduction)?;
+        let rows = visitor_view(name, &stage, &model, &prep, &target, &params)?;
+        let get = |s: &str| rows.iter().find(|r| r.name.contains(s)).map_or(f64::NAN, |r| r.value);
+        println!(
+            "  {name}: {:.2} / {:.2}, chips {:.2}, rings {:.2}",
+            get("CIEDE2000 mean (m"),
+            get("CIEDE2000 p95"),
+            get("mean in chips"),
+            get("ring around")
+        );
+    }
+    Ok(())
+}
