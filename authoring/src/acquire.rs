@@ -40,7 +40,8 @@ pub struct AcquireConfig {
     /// Phase-shift period in projector pixels.
     pub phase_period: u32,
     pub phase_steps: u32,
-    /// Gray-ramp levels per channel, evenly spaced from 0 to 255.
+    /// Gray-ramp levels per channel from 0 to 255, dense at the dark end
+    /// ([`patterns::ramp_levels`]).
     pub ramp_levels: u32,
     /// Wait after showing a pattern before grabbing (projector latency, camera exposure).
     pub settle: Duration,

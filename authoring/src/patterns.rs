@@ -64,10 +64,15 @@ pub fn phase_value(c: u32, period: u32, step: u32, steps: u32) -> u8 {
     (255.0 * (0.5 + 0.5 * a.cos())).round() as u8
 }
 
-/// The gray-ramp levels for `count` evenly spaced levels from 0 to 255 inclusive.
+/// The gray-ramp levels for `count` levels from 0 to 255 inclusive, spaced as the square of
+/// evenly spaced steps (9 levels: 0, 4, 16, 36, 64, 100, 143, 195, 255), and never closer
+/// than one level (256 levels: every one). Dense at the dark end, because at a low light bound
+/// most frame values lie there, and a projector's curve there (a power law, or one that
+/// straightens towards black) is what a fit cannot guess from brighter levels.
 pub fn ramp_levels(count: u32) -> Vec<u8> {
-    let count = count.max(2);
-    (0..count).map(|i| (i as f64 * 255.0 / (count - 1) as f64).round() as u8).collect()
+    let count = count.clamp(2, 256);
+    let last = (count - 1) as f64;
+    (0..count).map(|i| ((255.0 * (i as f64 / last).powi(2)).round() as u32).max(i) as u8).collect()
 }
 
 #[cfg(test)]
@@ -119,7 +124,12 @@ mod tests {
         assert_eq!(lit, vec![(1, 2), (5, 2), (1, 6), (5, 6)]);
         let r = render(&Pattern::Ramp { channel: 1, level: 77 }, 2, 2);
         assert_eq!(r.get_pixel(1, 1).0, [0, 77, 0]);
-        assert_eq!(ramp_levels(17)[1], 16);
+        assert_eq!(ramp_levels(9), [0, 4, 16, 36, 64, 100, 143, 195, 255]);
         assert_eq!(*ramp_levels(17).last().unwrap(), 255);
+        assert_eq!(ramp_levels(256), (0..=255).collect::<Vec<u8>>());
+        for n in 2..=256 {
+            let l = ramp_levels(n);
+            assert!(l.len() == n as usize && l[0] == 0 && l.windows(2).all(|w| w[0] < w[1]), "{n}: {l:?}");
+        }
     }
 }
