@@ -19,7 +19,7 @@ use restage_authoring::acquire::AcquireConfig;
 use restage_authoring::compensate::{Exponent, Params, Prepared};
 use restage_authoring::eval::compensate::{pristine_target, visitor_view};
 use restage_authoring::stage_model::StageModel;
-use restage_authoring::stage_sim::{RigVariation, SceneConfig, SceneName, VirtualStage};
+use restage_authoring::stage_sim::{RigVariation, SceneConfig, VirtualStage};
 
 /// The sRGB decoding curve: linear below 0.04045, a 2.4 power above.
 fn srgb(x: f64) -> f64 {
@@ -27,16 +27,8 @@ fn srgb(x: f64) -> f64 {
 }
 
 fn stage(seed: u64) -> anyhow::Result<VirtualStage> {
-    let config = SceneConfig {
-        scene: SceneName::Vase,
-        seed,
-        camera: [800, 600],
-        projector: [1400, 1050],
-        projectors: 3,
-        deteriorate: true,
-        plinth: false,
-        rig: RigVariation::Seeded,
-    };
+    let config =
+        SceneConfig { seed, camera: [800, 600], rig: RigVariation::Seeded, ..SceneConfig::default() };
     let mut setup = VirtualStage::new(&config)?.setup().clone();
     let curve: Vec<f32> = (0..256).map(|v| srgb(v as f64 / 255.0) as f32).collect();
     for p in &mut setup.projectors {
