@@ -379,20 +379,9 @@ fn measure_response(
     if samples.len() < 5 {
         return Ok(None);
     }
-    samples.sort_by(|a, b| a.0.total_cmp(&b.0));
-    // Piecewise linear through the samples, then forced monotonic.
-    let mut curve = vec![0.0f32; 256];
-    for (v, out) in curve.iter_mut().enumerate() {
-        let v = v as f32;
-        let k = samples.partition_point(|s| s.0 <= v).clamp(1, samples.len() - 1);
-        let (a, b) = (samples[k - 1], samples[k]);
-        let t = if b.0 > a.0 { (v - a.0) / (b.0 - a.0) } else { 0.0 };
-        *out = a.1 + t * (b.1 - a.1);
-    }
-    for i in 1..256 {
-        curve[i] = curve[i].max(curve[i - 1]);
-    }
-    Ok(Some(curve))
+    // The same fit as the radiometric step's (log-log, a power law below the first level).
+    let points: Vec<(u8, f32)> = samples.iter().map(|&(l, v)| (l as u8, v)).collect();
+    Ok(Some(super::radiometry::fit_response(&points)))
 }
 
 /// Inverse of a monotonic 256-entry response: relative light to input in 0..=1.
