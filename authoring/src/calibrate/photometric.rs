@@ -540,7 +540,9 @@ fn line(img: &mut image::RgbImage, a: (f64, f64), b: (f64, f64), colour: [u8; 3]
 }
 
 /// A projector's response curves (red, green, blue) over input level 0..255 (x) and relative
-/// output 0..1 (y), gridlines every 32 levels and 0.1, measured levels as squares.
+/// output 0..1 (y), gridlines every 32 levels and 0.1, measured levels as squares; in the upper
+/// left the dark end enlarged: levels 0..64 (gridlines every 16) against 0 to a tenth above
+/// the highest curve's output at 64.
 pub fn response_plot(rad: &ProjectorRadiometry) -> image::RgbImage {
     let (w, h, m) = (560u32, 420u32, 30.0f64);
     let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255; 3]));
@@ -562,14 +564,49 @@ pub fn response_plot(rad: &ProjectorRadiometry) -> image::RgbImage {
             line(&mut img, at(v as f64 - 1.0, r[v - 1] as f64), at(v as f64, r[v] as f64), colour);
         }
         for &(l, o) in &rad.measured[c] {
-            let (x, y) = at(l as f64, o as f64);
-            let corners = [(x - 3.0, y - 3.0), (x + 3.0, y - 3.0), (x + 3.0, y + 3.0), (x - 3.0, y + 3.0)];
-            for e in 0..4 {
-                line(&mut img, corners[e], corners[(e + 1) % 4], colour);
-            }
+            square(&mut img, at(l as f64, o as f64), colour);
+        }
+    }
+    // The dark end enlarged (levels 0-64) in the empty upper left: at a low light bound most
+    // frame values are there, and at full scale the curve lies on the axis.
+    let top = rad.response.iter().map(|r| r[DARK_END]).fold(0.0f32, f32::max).max(1e-6) as f64 * 1.1;
+    let (ix, iy, iw, ih) = (m + 14.0, m + 8.0, pw * 0.42, ph * 0.42);
+    let inset = |level: f64, out: f64| (ix + iw * level / DARK_END as f64, iy + ih * (1.0 - out / top));
+    for y in iy as u32..=(iy + ih) as u32 {
+        for x in ix as u32..=(ix + iw) as u32 {
+            img.put_pixel(x, y, image::Rgb([255; 3]));
+        }
+    }
+    for l in (0..=DARK_END).step_by(16) {
+        line(&mut img, inset(l as f64, 0.0), inset(l as f64, top), [225; 3]);
+    }
+    let d = DARK_END as f64;
+    for (a, b) in
+        [((0.0, 0.0), (d, 0.0)), ((0.0, 0.0), (0.0, top)), ((d, 0.0), (d, top)), ((0.0, top), (d, top))]
+    {
+        line(&mut img, inset(a.0, a.1), inset(b.0, b.1), [0; 3]);
+    }
+    for (c, &colour) in colours.iter().enumerate() {
+        let r = &rad.response[c];
+        for v in 1..=DARK_END {
+            line(&mut img, inset(v as f64 - 1.0, r[v - 1] as f64), inset(v as f64, r[v] as f64), colour);
+        }
+        for &(l, o) in rad.measured[c].iter().filter(|&&(l, o)| l as usize <= DARK_END && (o as f64) <= top) {
+            square(&mut img, inset(l as f64, o.max(0.0) as f64), colour);
         }
     }
     img
+}
+
+/// The last level [`response_plot`]'s enlarged dark end shows.
+const DARK_END: usize = 64;
+
+/// A 7-pixel open square centred on `(x, y)`: a measured point.
+fn square(img: &mut image::RgbImage, (x, y): (f64, f64), colour: [u8; 3]) {
+    let corners = [(x - 3.0, y - 3.0), (x + 3.0, y - 3.0), (x + 3.0, y + 3.0), (x - 3.0, y + 3.0)];
+    for e in 0..4 {
+        line(img, corners[e], corners[(e + 1) % 4], colour);
+    }
 }
 
 /// The footprint that [`footprint_map`] shows at full scale (yellow): twice the median of the

@@ -342,7 +342,7 @@ impl Page<'_> {
             "</div><figcaption>Each projector's light output for each 8-bit input value, per colour \
              channel, relative to its output at 255 above black (0 = black level, 1 = full). Solid: \
              as calibrated from the gray ramps (<code>stage/stage.bin</code>). The calibration's \
-             own plots, with the measured levels as squares: {}.</figcaption></figure>",
+             own plots, with the measured levels as squares and the dark end (levels 0-64) enlarged: {}.</figcaption></figure>",
             if pngs.is_empty() { "none written".to_string() } else { pngs.join(", ") }
         );
     }
