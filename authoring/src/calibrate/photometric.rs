@@ -539,67 +539,62 @@ fn line(img: &mut image::RgbImage, a: (f64, f64), b: (f64, f64), colour: [u8; 3]
     }
 }
 
-/// A projector's response curves (red, green, blue) over input level 0..255 (x) and relative
-/// output 0..1 (y), gridlines every 32 levels and 0.1, measured levels as squares; in the upper
-/// left the dark end enlarged: levels 0..64 (gridlines every 16) against 0 to a tenth above
-/// the highest curve's output at 64.
+/// A projector's response curves (red, green, blue) over input level (x) against relative
+/// output (y), measured levels as squares, in two panels: on the left the whole curve (0..255
+/// against 0..1, gridlines every 32 levels and 0.1), on the right the dark end enlarged (0..64,
+/// gridlines every 16, against 0 to a tenth above the highest curve's output at 64), where a
+/// low light bound puts most frame values and the full curve lies on the axis.
 pub fn response_plot(rad: &ProjectorRadiometry) -> image::RgbImage {
-    let (w, h, m) = (560u32, 420u32, 30.0f64);
-    let mut img = image::RgbImage::from_pixel(w, h, image::Rgb([255; 3]));
-    let (pw, ph) = (w as f64 - 2.0 * m, h as f64 - 2.0 * m);
-    let at = |level: f64, out: f64| (m + pw * level / 255.0, h as f64 - m - ph * out);
-    for l in (0..=256).step_by(32) {
-        let l = (l as f64).min(255.0);
-        line(&mut img, at(l, 0.0), at(l, 1.0), [225; 3]);
-    }
-    for i in 0..=10 {
-        line(&mut img, at(0.0, i as f64 / 10.0), at(255.0, i as f64 / 10.0), [225; 3]);
-    }
-    line(&mut img, at(0.0, 0.0), at(255.0, 0.0), [0; 3]);
-    line(&mut img, at(0.0, 0.0), at(0.0, 1.0), [0; 3]);
-    let colours = [[200, 30, 30], [20, 150, 40], [30, 60, 210]];
-    for (c, &colour) in colours.iter().enumerate() {
-        let r = &rad.response[c];
-        for v in 1..r.len() {
-            line(&mut img, at(v as f64 - 1.0, r[v - 1] as f64), at(v as f64, r[v] as f64), colour);
-        }
-        for &(l, o) in &rad.measured[c] {
-            square(&mut img, at(l as f64, o as f64), colour);
-        }
-    }
-    // The dark end enlarged (levels 0-64) in the empty upper left: at a low light bound most
-    // frame values are there, and at full scale the curve lies on the axis.
+    let (w, h) = (560u32, 420u32);
+    let mut img = image::RgbImage::from_pixel(w + w / 2, h, image::Rgb([255; 3]));
     let top = rad.response.iter().map(|r| r[DARK_END]).fold(0.0f32, f32::max).max(1e-6) as f64 * 1.1;
-    let (ix, iy, iw, ih) = (m + 14.0, m + 8.0, pw * 0.42, ph * 0.42);
-    let inset = |level: f64, out: f64| (ix + iw * level / DARK_END as f64, iy + ih * (1.0 - out / top));
-    for y in iy as u32..=(iy + ih) as u32 {
-        for x in ix as u32..=(ix + iw) as u32 {
-            img.put_pixel(x, y, image::Rgb([255; 3]));
-        }
-    }
-    for l in (0..=DARK_END).step_by(16) {
-        line(&mut img, inset(l as f64, 0.0), inset(l as f64, top), [225; 3]);
-    }
-    let d = DARK_END as f64;
-    for (a, b) in
-        [((0.0, 0.0), (d, 0.0)), ((0.0, 0.0), (0.0, top)), ((d, 0.0), (d, top)), ((0.0, top), (d, top))]
-    {
-        line(&mut img, inset(a.0, a.1), inset(b.0, b.1), [0; 3]);
-    }
-    for (c, &colour) in colours.iter().enumerate() {
-        let r = &rad.response[c];
-        for v in 1..=DARK_END {
-            line(&mut img, inset(v as f64 - 1.0, r[v - 1] as f64), inset(v as f64, r[v] as f64), colour);
-        }
-        for &(l, o) in rad.measured[c].iter().filter(|&&(l, o)| l as usize <= DARK_END && (o as f64) <= top) {
-            square(&mut img, inset(l as f64, o.max(0.0) as f64), colour);
-        }
-    }
+    response_panel(&mut img, rad, (0.0, w as f64), (255, 32), (1.0, 0.1));
+    response_panel(&mut img, rad, (w as f64, (w / 2) as f64), (DARK_END, 16), (top, top));
     img
 }
 
 /// The last level [`response_plot`]'s enlarged dark end shows.
 const DARK_END: usize = 64;
+
+/// One panel of [`response_plot`], `left` and `width` in pixels: levels `0..=levels.0` with
+/// gridlines every `levels.1`, outputs `0..=outputs.0` with gridlines every `outputs.1`.
+fn response_panel(
+    img: &mut image::RgbImage,
+    rad: &ProjectorRadiometry,
+    (left, width): (f64, f64),
+    levels: (usize, usize),
+    outputs: (f64, f64),
+) {
+    let m = 30.0;
+    let (pw, ph) = (width - 2.0 * m, img.height() as f64 - 2.0 * m);
+    let (max_level, max_out) = (levels.0 as f64, outputs.0);
+    let at = |level: f64, out: f64| (left + m + pw * level / max_level, m + ph * (1.0 - out / max_out));
+    for l in (0..=levels.0).step_by(levels.1).chain([levels.0]) {
+        line(img, at(l as f64, 0.0), at(l as f64, max_out), [225; 3]);
+    }
+    let steps = (max_out / outputs.1).round() as usize;
+    for i in 0..=steps {
+        let out = max_out * i as f64 / steps.max(1) as f64;
+        line(img, at(0.0, out), at(max_level, out), [225; 3]);
+    }
+    line(img, at(0.0, 0.0), at(max_level, 0.0), [0; 3]);
+    line(img, at(0.0, 0.0), at(0.0, max_out), [0; 3]);
+    let colours = [[200, 30, 30], [20, 150, 40], [30, 60, 210]];
+    for (c, &colour) in colours.iter().enumerate() {
+        let r = &rad.response[c];
+        for v in 1..=levels.0 {
+            let (a, b) = (r[v - 1] as f64, r[v] as f64);
+            if a <= max_out {
+                line(img, at(v as f64 - 1.0, a), at(v as f64, b.min(max_out)), colour);
+            }
+        }
+        // A level measured a little above the panel's top (noise, or full output) is drawn on it.
+        let shown = |&&(l, o): &&(u8, f32)| l as usize <= levels.0 && o as f64 <= max_out * 1.05;
+        for &(l, o) in rad.measured[c].iter().filter(shown) {
+            square(img, at(l as f64, (o as f64).clamp(0.0, max_out)), colour);
+        }
+    }
+}
 
 /// A 7-pixel open square centred on `(x, y)`: a measured point.
 fn square(img: &mut image::RgbImage, (x, y): (f64, f64), colour: [u8; 3]) {
