@@ -266,14 +266,31 @@ impl ResponseBuilder {
             // a noisy camera measure nothing, and the curve continues below the first level
             // that does as a power law).
             let n = self.mask[c].iter().filter(|&&m| m).count().max(2) as f64;
-            let significant: Vec<(u8, f32)> = self.samples[c]
-                .values()
-                .filter(|s| {
-                    let spread = (s.sum_sq[c] - s.sum[c] * s.sum[c] / n).max(0.0).sqrt();
-                    s.sum[c] > SIGNIFICANT * spread
-                })
-                .map(|s| (s.level, (s.sum[c] / self.lit_sum[c]) as f32))
-                .collect();
+            let spread = |s: &LevelSample| (s.sum_sq[c] - s.sum[c] * s.sum[c] / n).max(0.0).sqrt();
+            let kept: Vec<&LevelSample> =
+                self.samples[c].values().filter(|s| s.sum[c] > SIGNIFICANT * spread(s)).collect();
+            let significant: Vec<(u8, f32)> =
+                kept.iter().map(|s| (s.level, (s.sum[c] / self.lit_sum[c]) as f32)).collect();
+            // A level brighter than a higher one beyond its noise and by a tenth is not noise:
+            // an image filed under the wrong level, or the projector changed mode between shots.
+            // The fit pools it flat (monotonic, reading those levels too bright, so frames light
+            // them darker), and says so.
+            for w in kept.windows(2) {
+                let (a, b) = (w[0], w[1]);
+                if a.sum[c] > 1.1 * b.sum[c] && a.sum[c] - b.sum[c] > SIGNIFICANT * (spread(a) + spread(b)) {
+                    self.warnings.push(format!(
+                        "projector {k}, channel {c}: level {} ({}) measured brighter than level {} ({}): \
+                         {:.4} against {:.4} of full output; an image filed under the wrong level or \
+                         out of order? The response is pooled flat there",
+                        a.level,
+                        a.name,
+                        b.level,
+                        b.name,
+                        a.sum[c] / self.lit_sum[c],
+                        b.sum[c] / self.lit_sum[c],
+                    ));
+                }
+            }
             let mut levels: Vec<u8> = points.iter().map(|p| p.0).collect();
             levels.extend([0, 255]);
             levels.sort_unstable();
@@ -622,6 +639,24 @@ mod tests {
                 100.0 * e
             );
         }
+    }
+
+    /// A lying input that is well formed: the image of level 195 filed as level 20.
+    #[test]
+    fn a_ramp_image_filed_under_the_wrong_level_is_named() {
+        let levels: Vec<u8> = crate::patterns::ramp_levels(9);
+        let (mut b, _) = scene(&levels, 0.002, 0.0);
+        assert!(b.clone().finish().unwrap().warnings.is_empty());
+        let mut liar = b.samples[0][&195].clone();
+        (liar.level, liar.name) = (20, "proj1/ramp_c0_195.png".into());
+        b.insert(liar).unwrap();
+        let r = b.finish().unwrap();
+        let all = r.warnings.join("\n");
+        assert!(
+            all.contains("channel 0: level 20 (proj1/ramp_c0_195.png) measured brighter than level 36"),
+            "{all}"
+        );
+        assert!(r.response[0].windows(2).all(|w| w[0] < w[1]));
     }
 
     #[test]
