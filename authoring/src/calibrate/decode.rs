@@ -341,7 +341,8 @@ fn measure_response(
         .collect();
     levels.sort_unstable();
     levels.dedup();
-    let mut samples = vec![(0.0f32, 0.0f32), (255.0, 1.0)];
+    // Levels 0 and 255 are 0 and 1 by definition; `fit_response` adds them.
+    let mut samples: Vec<(u8, f32)> = Vec::new();
     for &level in &levels {
         if level == 0 || level == 255 {
             continue;
@@ -374,14 +375,13 @@ fn measure_response(
         }
         let mid = rel.len() / 2;
         let (_, m, _) = rel.select_nth_unstable_by(mid, f32::total_cmp);
-        samples.push((level as f32, *m));
+        samples.push((level, *m));
     }
-    if samples.len() < 5 {
+    if samples.len() < 3 {
         return Ok(None);
     }
     // The same fit as the radiometric step's (log-log, a power law below the first level).
-    let points: Vec<(u8, f32)> = samples.iter().map(|&(l, v)| (l as u8, v)).collect();
-    Ok(Some(super::radiometry::fit_response(&points)))
+    Ok(Some(super::radiometry::fit_response(&samples)))
 }
 
 /// Inverse of a monotonic 256-entry response: relative light to input in 0..=1.

@@ -259,8 +259,7 @@ impl ResponseBuilder {
             if inner < 2 {
                 return Err(RadiometryError::TooFewLevels { projector: k, channel: c, found: inner });
             }
-            let points: Vec<(u8, f32)> =
-                self.samples[c].values().map(|s| (s.level, (s.sum[c] / self.lit_sum[c]) as f32)).collect();
+            let ratio = |s: &LevelSample| (s.sum[c] / self.lit_sum[c]) as f32;
             // The fit takes the levels whose output stands out of the noise: a mean difference
             // from black of more than three standard errors over the pixels (the dark levels of
             // a noisy camera measure nothing, and the curve continues below the first level
@@ -269,8 +268,7 @@ impl ResponseBuilder {
             let spread = |s: &LevelSample| (s.sum_sq[c] - s.sum[c] * s.sum[c] / n).max(0.0).sqrt();
             let kept: Vec<&LevelSample> =
                 self.samples[c].values().filter(|s| s.sum[c] > SIGNIFICANT * spread(s)).collect();
-            let significant: Vec<(u8, f32)> =
-                kept.iter().map(|s| (s.level, (s.sum[c] / self.lit_sum[c]) as f32)).collect();
+            let significant: Vec<(u8, f32)> = kept.iter().map(|s| (s.level, ratio(s))).collect();
             // A level brighter than a higher one beyond its noise and by a tenth is not noise:
             // an image filed under the wrong level, or the projector changed mode between shots.
             // The fit pools it flat (monotonic, reading those levels too bright, so frames light
@@ -286,12 +284,12 @@ impl ResponseBuilder {
                         a.name,
                         b.level,
                         b.name,
-                        a.sum[c] / self.lit_sum[c],
-                        b.sum[c] / self.lit_sum[c],
+                        ratio(a),
+                        ratio(b),
                     ));
                 }
             }
-            let mut levels: Vec<u8> = points.iter().map(|p| p.0).collect();
+            let mut levels: Vec<u8> = self.samples[c].keys().copied().collect();
             levels.extend([0, 255]);
             levels.sort_unstable();
             levels.dedup();
@@ -314,7 +312,8 @@ impl ResponseBuilder {
             for (cc, row) in leakage.iter_mut().enumerate() {
                 row[c] = if cc == c { 1.0 } else { (top.sum[cc] / self.lit_sum[cc]) as f32 / r_top };
             }
-            measured[c] = points;
+            // Every level measured, noise included, for the plot.
+            measured[c] = self.samples[c].values().map(|s| (s.level, ratio(s))).collect();
         }
         let _ = &self.full_names;
         Ok(ProjectorRadiometry { response, measured, leakage, lit: self.lit, warnings: self.warnings })
