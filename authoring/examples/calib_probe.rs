@@ -2,11 +2,13 @@
 //! the calibrated model of a simulated capture compensated as it is, then with one part at a
 //! time replaced by the virtual stage's truth (room light and black level per pixel, gains,
 //! projector responses, black levels, lux), each judged with the capture's true physics
-//! (formula, m = 8). Also prints the calibrated responses against the true ones at the dark end.
+//! (formula, m = 8). Also prints the calibrated responses against the true ones at the dark end,
+//! and the gains' error by how much light a pixel returns.
 //!
 //! `cargo run --release -p restage-authoring --example calib_probe -- CAPTURE STAGE [E_BOUND]`
 //! (default 50 lx; about 15 s a row at 800x600).
 
+use restage_authoring::calibrate::radiometry::full_irradiance;
 use restage_authoring::compensate::{Exponent, Params, Prepared};
 use restage_authoring::eval::compensate::{pristine_target, visitor_view};
 use restage_authoring::stage_model::StageModel;
@@ -35,6 +37,28 @@ fn main() -> anyhow::Result<()> {
             .map(|&v| format!("{v}: {:.5} / {:.5}", c.response[0][v], t.response[0][v]))
             .collect();
         println!("  projector {k}: {}", row.join(", "));
+    }
+
+    // The gains' error against the truth by how much light the pixel returns (green channel,
+    // its full light from every projector, as `white - black` measures it): the camera's noise
+    // weighs on the dark paint.
+    let mut bins = [(0.0f64, 0.0f64, 0usize); 6];
+    for i in 0..calibrated.points.len() {
+        let (g, t) = (calibrated.gain[i][1], truth.gain[i][1]);
+        if !(calibrated.points[i][0].is_finite() && g.is_finite() && t > 0.0) {
+            continue;
+        }
+        let e: f64 = (0..truth.projectors.len()).filter_map(|k| full_irradiance(&truth, k, i)).sum();
+        let light = t as f64 * e;
+        let b = ((light / 0.003).log2().floor().max(0.0) as usize).min(bins.len() - 1);
+        bins[b].0 += light;
+        bins[b].1 += ((g / t - 1.0) as f64).powi(2);
+        bins[b].2 += 1;
+    }
+    println!("gain error (RMS, green) by the pixel's full light, white - black:");
+    for (light, sq, n) in bins.iter().filter(|b| b.2 > 0) {
+        let n = *n as f64;
+        println!("  about {:.4}: {:.1} % over {n} pixels", light / n, 100.0 * (sq / n).sqrt());
     }
 
     // Per camera pixel the model reconstructed, the truth's value replaces the calibrated one.

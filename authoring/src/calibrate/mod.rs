@@ -4,6 +4,8 @@
 
 pub mod board;
 pub mod decode;
+pub mod fill;
+pub mod fulllight;
 pub mod geometry;
 pub mod lux;
 pub mod photometric;

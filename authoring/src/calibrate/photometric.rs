@@ -1,6 +1,7 @@
 //! The photometric half of calibration (paper §5.2), run after the geometry step: light
-//! transport from the dot grids, responses from the ramps, then vignetting, black levels,
-//! lux scale, per-pixel gain and ambient — all written into the [`StageModel`].
+//! transport from the dot grids, responses from the ramps, dark-paint pixels filled and each
+//! projector's full light measured again from the Gray-code stripes, then vignetting, black
+//! levels, lux scale, per-pixel gain and ambient — all written into the [`StageModel`].
 //!
 //! Loads the capture's images (the only I/O here), one at a time per worker so memory stays at
 //! a few images whatever the number of dots or levels.
@@ -18,6 +19,8 @@ use rayon::prelude::*;
 use thiserror::Error;
 use tracing::{info, warn};
 
+use crate::calibrate::fill::{self, FillParams};
+use crate::calibrate::fulllight;
 use crate::calibrate::lux::{LuxError, LuxFit, LuxReadings, apply_lux};
 use crate::calibrate::radiometry::{
     ProjectorRadiometry, RadiometryError, ResponseBuilder, full_irradiance, gain_map,
@@ -60,6 +63,8 @@ pub struct PhotometricReport {
     /// Stray room light per channel, in lux.
     pub stray_lux: [f32; 3],
     pub lux: Vec<LuxFit>,
+    /// Per projector: camera pixels no projector decoded that [`fill`] gave its coordinates.
+    pub filled: Vec<usize>,
     pub warnings: Vec<String>,
 }
 
@@ -285,6 +290,39 @@ pub fn calibrate_photometry(
         report.radiometry.push(rad);
         blacks.push(black);
     }
+    // Pixels no projector decoded between pixels a projector did (dark paint): coordinates
+    // interpolated from the neighbours, kept where that projector's Gray-code images confirm
+    // them. The same images' stripes then measure each projector's full light again.
+    let (w, h) = (size.0 as usize, size.1 as usize);
+    let decoded: Vec<bool> =
+        (0..w * h).map(|i| model.correspondences.iter().any(|m| m[i][0].is_finite())).collect();
+    let candidates: Vec<Vec<(usize, [f32; 2])>> = model
+        .correspondences
+        .iter()
+        .map(|m| fill::interpolate(w, h, m, &decoded, &FillParams::default()))
+        .collect();
+    let mut tentative = model.correspondences.clone();
+    for (map, cands) in tentative.iter_mut().zip(&candidates) {
+        for &(i, u) in cands {
+            map[i] = u;
+        }
+    }
+    let sums = fulllight::stripe_sums(dir, manifest, size, &tentative, progress)?;
+    for (k, cands) in candidates.iter().enumerate() {
+        let kept: Vec<_> = cands.iter().filter(|&&(i, _)| sums.confirms(k, i, fill::MIN_Z)).collect();
+        for &&(i, u) in &kept {
+            model.correspondences[k][i] = u;
+        }
+        info!(
+            "projector {k}: {} of {} interpolated coordinates at pixels no projector decoded confirmed by \
+             its Gray-code images",
+            kept.len(),
+            cands.len()
+        );
+        report.filled.push(kept.len());
+    }
+    let refined = sums.refine(&mut lits, 4);
+    info!("full light per projector averaged over the Gray-code stripes at {refined:?} camera pixels");
     // The dots moved the correspondences: triangulate again with the same projectors, so that
     // the saved points are the ones the saved correspondences give (one consistent model) and
     // the fits below use them.
@@ -682,6 +720,7 @@ impl PhotometricReport {
                     dots_off_object: t.off_object,
                     dots_predicted: t.predicted,
                     dots_snapped: t.dots,
+                    filled_pixels: self.filled.get(k).copied().unwrap_or(0),
                     leakage: self.radiometry.get(k).map(|r| r.leakage.map(wide)),
                     lux: self.lux.iter().find(|l| l.projector == k).map(|l| LuxFigures {
                         distance_mm: l.distance_mm,
@@ -706,9 +745,9 @@ impl PhotometricReport {
 /// The photometric summary's file name, in the stage folder.
 pub const PHOTOMETRIC_FILE: &str = "photometric.json";
 /// Version of [`PhotometricSummary`]; a reader refuses a newer one. 2: the lux figures say
-/// which reference pixel was requested and how far the used one lies from it (version 1 files,
-/// without them, still load).
-pub const PHOTOMETRIC_VERSION: u32 = 2;
+/// which reference pixel was requested and how far the used one lies from it; 3: each
+/// projector's filled pixels (older files, without them, still load).
+pub const PHOTOMETRIC_VERSION: u32 = 3;
 
 /// `photometric.json`: the photometric calibration's figures per projector. Fields are in
 /// alphabetical order, as the file has always had them; values that are `f32` in the
@@ -734,6 +773,10 @@ pub struct ProjectorPhotometry {
     pub dots_off_object: usize,
     pub dots_predicted: usize,
     pub dots_snapped: usize,
+    /// Camera pixels no projector decoded that were given this projector's coordinates by
+    /// interpolation, confirmed by its Gray-code images (dark paint; `calibrate::fill`).
+    #[serde(default)]
+    pub filled_pixels: usize,
     /// Camera channel response to each projector channel, relative (`[projector][camera]`).
     pub leakage: Option<[[f64; 3]; 3]>,
     pub lux: Option<LuxFigures>,

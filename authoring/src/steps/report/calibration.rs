@@ -246,7 +246,7 @@ impl Page<'_> {
         );
         self.push(
             "<div class=\"tbl\"><table><thead><tr><th scope=\"col\">projector</th><th scope=\"col\">dots snapped</th>\
-             <th scope=\"col\">transport covers (of its lit pixels)</th><th scope=\"col\">colour leakage, max</th>\
+             <th scope=\"col\">transport covers (of its lit pixels)</th><th scope=\"col\">pixels filled (no projector decoded them)</th><th scope=\"col\">colour leakage, max</th>\
              <th scope=\"col\">vignetting coefficient</th><th scope=\"col\">lux meter</th><th scope=\"col\">lux_at_1m (lx)</th>\
              <th scope=\"col\">black level (of white)</th></tr></thead><tbody>",
         );
@@ -281,11 +281,12 @@ impl Page<'_> {
             });
             let _ = write!(
                 self.html,
-                r#"<tr><td>{}</td><td class="n">{} of {}</td><td class="n">{}</td><td class="n">{}</td><td class="n">{}</td><td>{}</td><td class="n">{}</td><td class="n">{}</td></tr>"#,
+                r#"<tr><td>{}</td><td class="n">{} of {}</td><td class="n">{}</td><td class="n">{}</td><td class="n">{}</td><td class="n">{}</td><td>{}</td><td class="n">{}</td><td class="n">{}</td></tr>"#,
                 p.projector,
                 p.dots_snapped,
                 p.dots_predicted,
                 pct(p.coverage_of_lit_pixels),
+                p.filled_pixels,
                 leak,
                 p.vignetting_coefficient.map_or("uniform".into(), |v| num(v, 3)),
                 lux,

@@ -102,6 +102,7 @@ fn example() -> Inputs {
         dots_off_object: 10,
         dots_predicted: 300,
         dots_snapped: 280,
+        filled_pixels: 120,
         leakage: Some([[1.0, 0.01, 0.0], [0.02, 1.0, 0.0], [0.0, 0.0, 1.0]]),
         lux: Some(LuxFigures {
             distance_mm: 1050.0,

@@ -1,0 +1,161 @@
+//! Correspondences for camera pixels that no projector decoded but that lie between pixels a
+//! projector did decode: dark paint, whose Gray-code contrast drowns in the camera's noise bit
+//! by bit although the surface under it is as smooth as around it. Each such pixel's projector
+//! coordinate is interpolated by a local quadratic fit of the decoded neighbours, and
+//! [`crate::calibrate::fulllight::StripeSums::confirms`] keeps it only where the Gray-code
+//! images agree with it (lit on the stripes it predicts lit, dark on the others, beyond noise).
+//! Pixels at the silhouette (decoded on one side only) and gaps the neighbours' coordinates
+//! jump across (an occluding edge) are left empty.
+
+use rayon::prelude::*;
+
+/// Standard errors by which a filled pixel's lit samples must stand above its black ones
+/// ([`crate::calibrate::fulllight::StripeSums::confirms`]).
+pub const MIN_Z: f64 = 8.0;
+
+/// How far to look for decoded neighbours and how well they must fit.
+#[derive(Clone, Copy, Debug)]
+pub struct FillParams {
+    /// Window half-sizes tried in turn (camera pixels): the pixel must have decoded pixels on
+    /// both sides along one of four directions within it.
+    pub radii: [usize; 3],
+    /// Decoded neighbours needed in the window for the fit.
+    pub min_neighbours: usize,
+    /// The fit's RMS residual over the neighbours must stay under this (projector pixels).
+    pub max_rms_px: f64,
+}
+
+impl Default for FillParams {
+    fn default() -> Self {
+        Self { radii: [6, 12, 24], min_neighbours: 24, max_rms_px: 0.5 }
+    }
+}
+
+/// Candidate coordinates for projector map `map` (camera `w x h`, NaN where not decoded) at the
+/// pixels where `decoded_by_any` is false: `(pixel, projector coordinate)`.
+pub fn interpolate(
+    w: usize,
+    h: usize,
+    map: &[[f32; 2]],
+    decoded_by_any: &[bool],
+    params: &FillParams,
+) -> Vec<(usize, [f32; 2])> {
+    let valid = |x: i64, y: i64| {
+        x >= 0
+            && y >= 0
+            && (x as usize) < w
+            && (y as usize) < h
+            && map[y as usize * w + x as usize][0].is_finite()
+    };
+    (0..w * h)
+        .into_par_iter()
+        .filter(|&i| !decoded_by_any[i])
+        .filter_map(|i| {
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            params.radii.iter().find_map(|&r| {
+                let r = r as i64;
+                let bridged = [(1, 0), (0, 1), (1, 1), (1, -1)].iter().any(|&(dx, dy)| {
+                    let side = |s: i64| (1..=r).any(|t| valid(x + s * t * dx, y + s * t * dy));
+                    side(1) && side(-1)
+                });
+                if !bridged {
+                    return None;
+                }
+                fit_at(w, h, map, (x, y), r, params).map(|u| (i, u))
+            })
+        })
+        .collect()
+}
+
+/// Least-squares quadratic of each projector coordinate over the decoded pixels within `r`
+/// of `(x, y)` (every `step`-th row and column for the wider windows), evaluated at `(x, y)`.
+fn fit_at(
+    w: usize,
+    h: usize,
+    map: &[[f32; 2]],
+    (x, y): (i64, i64),
+    r: i64,
+    params: &FillParams,
+) -> Option<[f32; 2]> {
+    let step = (r / 8).max(1);
+    let mut ata = nalgebra::Matrix6::<f64>::zeros();
+    let mut atb = [nalgebra::Vector6::<f64>::zeros(); 2];
+    let mut samples = Vec::new();
+    for yy in (y - r..=y + r).step_by(step as usize) {
+        for xx in (x - r..=x + r).step_by(step as usize) {
+            if xx < 0 || yy < 0 || xx as usize >= w || yy as usize >= h {
+                continue;
+            }
+            let m = map[yy as usize * w + xx as usize];
+            if !m[0].is_finite() {
+                continue;
+            }
+            // Scaled offsets keep the normal equations well conditioned.
+            let (u, v) = ((xx - x) as f64 / r as f64, (yy - y) as f64 / r as f64);
+            let row = nalgebra::Vector6::new(1.0, u, v, u * u, u * v, v * v);
+            ata += row * row.transpose();
+            for a in 0..2 {
+                atb[a] += row * m[a] as f64;
+            }
+            samples.push((row, m));
+        }
+    }
+    if samples.len() < params.min_neighbours {
+        return None;
+    }
+    let lu = ata.lu();
+    let coef = [lu.solve(&atb[0])?, lu.solve(&atb[1])?];
+    let sq: f64 = samples
+        .iter()
+        .map(|(row, m)| (0..2).map(|a| (coef[a].dot(row) - m[a] as f64).powi(2)).sum::<f64>())
+        .sum();
+    let rms = (sq / samples.len() as f64).sqrt();
+    (rms.is_finite() && rms <= params.max_rms_px).then(|| [coef[0][0] as f32, coef[1][0] as f32])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A smooth map (a tilted, curved surface), with a band of undecoded rows through it and
+    /// the image's right part undecoded (beyond a silhouette).
+    fn map(w: usize, h: usize, jump: bool) -> (Vec<[f32; 2]>, impl Fn(usize, usize) -> [f32; 2]) {
+        let truth = move |x: usize, y: usize| {
+            let (xf, yf) = (x as f32, y as f32);
+            let z = if jump && y < 30 { 40.0 } else { 0.0 };
+            [1.7 * xf + 0.004 * xf * xf + 0.3 * yf + z, 1.6 * yf + 0.003 * (xf - 40.0) * (yf - 20.0)]
+        };
+        let m = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                if (30..36).contains(&y) || x >= 70 { [f32::NAN; 2] } else { truth(x, y) }
+            })
+            .collect();
+        (m, truth)
+    }
+
+    #[test]
+    fn a_band_of_dark_paint_is_bridged_and_the_silhouette_is_not() {
+        let (w, h) = (100, 60);
+        let (m, truth) = map(w, h, false);
+        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
+        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        let band: Vec<_> = filled.iter().filter(|(i, _)| i % w < 70).collect();
+        assert_eq!(band.len(), 6 * 70, "every band pixel left of the silhouette");
+        assert!(filled.iter().all(|(i, _)| i % w < 70), "nothing past the silhouette");
+        for (i, u) in band {
+            let t = truth(i % w, i / w);
+            assert!((u[0] - t[0]).abs() < 0.05 && (u[1] - t[1]).abs() < 0.05, "{u:?} vs {t:?}");
+        }
+    }
+
+    #[test]
+    fn a_gap_the_coordinates_jump_across_is_left_empty() {
+        // Above the band the surface is another one (an occluding edge): 40 projector px apart.
+        let (w, h) = (100, 60);
+        let (m, _) = map(w, h, true);
+        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
+        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        assert!(filled.is_empty(), "{} pixels filled across the edge", filled.len());
+    }
+}
