@@ -143,21 +143,39 @@ pub fn colour_error(comp: &Compensation, view: &[[f32; 3]], target: &LinearImage
     (mean, p95, de.len())
 }
 
+/// The view over the object's pixels (where the target is not black): see [`whole_object`].
+#[derive(Clone, Copy, Debug)]
+pub struct WholeObject {
+    /// The share of the object's pixels the compensation lights (some projector has weight).
+    pub lit_share: f64,
+    /// Mean CIEDE2000 over every object pixel, lit or not.
+    pub mean: f64,
+    /// Mean CIEDE2000 over the lit object pixels only: the covered pixels without those off
+    /// the object (the target black there, the view only spill from the lit edge beside them).
+    pub lit_mean: f64,
+    /// The object's pixels.
+    pub pixels: usize,
+}
+
 /// Over every pixel of the object (where the target is not black), not only those the model
-/// covers: the share the compensation lights (some projector has weight there) and the mean
-/// CIEDE2000 of what the visitor sees, after the global scale. An object pixel the model
-/// leaves unlit shows room light only and counts as the error it is. Returns (lit share, mean
-/// CIEDE2000, object pixels).
-pub fn whole_object(comp: &Compensation, view: &[[f32; 3]], target: &LinearImage) -> (f64, f64, usize) {
+/// covers: the share the compensation lights and the mean CIEDE2000 of what the visitor sees,
+/// after the global scale, over all of them and over the lit ones. An object pixel the model
+/// leaves unlit shows room light only and counts as the error it is.
+pub fn whole_object(comp: &Compensation, view: &[[f32; 3]], target: &LinearImage) -> WholeObject {
     let s = comp.stats.scale;
     let kn = comp.frames.len();
     let object: Vec<usize> = (0..view.len()).filter(|&i| target.data[i].iter().any(|&c| c > 0.0)).collect();
     if object.is_empty() || s <= 0.0 {
-        return (f64::NAN, f64::NAN, object.len());
+        return WholeObject { lit_share: f64::NAN, mean: f64::NAN, lit_mean: f64::NAN, pixels: object.len() };
     }
-    let lit = object.iter().filter(|&&i| comp.weights[i * kn..(i + 1) * kn].iter().any(|&w| w > 0.0)).count();
-    let (de, _) = region_error(comp, view, target, &object);
-    (lit as f64 / object.len() as f64, de, object.len())
+    let lit: Vec<usize> = object
+        .iter()
+        .copied()
+        .filter(|&i| comp.weights[i * kn..(i + 1) * kn].iter().any(|&w| w > 0.0))
+        .collect();
+    let (mean, _) = region_error(comp, view, target, &object);
+    let (lit_mean, _) = region_error(comp, view, target, &lit);
+    WholeObject { lit_share: lit.len() as f64 / object.len() as f64, mean, lit_mean, pixels: object.len() }
 }
 
 /// Over the camera pixels `pixels`, lit or not: the mean CIEDE2000 of the view (after the
@@ -314,20 +332,21 @@ pub fn visitor_view(
     let comp = compensate::compensate_prepared(model, prep, target, params)?;
     let view = truth.view(&comp.frames);
     let (mean, p95, n) = colour_error(&comp, &view, target);
-    let (lit, whole_mean, object) = whole_object(&comp, &view, target);
+    let whole = whole_object(&comp, &view, target);
     let name = |s: &str| format!("{label}: {s}");
     let mut rows = vec![
         Metric::below(STEP, &name(&format!("CIEDE2000 mean (m = {})", params.m)), mean, "dE00", 3.0),
         Metric::info(STEP, &name("CIEDE2000 p95"), p95, "dE00"),
         Metric::info(STEP, &name("covered pixels"), n as f64, "px"),
-        Metric::info(STEP, &name("object pixels"), object as f64, "px"),
-        Metric::info(STEP, &name("object pixels lit"), 100.0 * lit, "%"),
+        Metric::info(STEP, &name("object pixels"), whole.pixels as f64, "px"),
+        Metric::info(STEP, &name("object pixels lit"), 100.0 * whole.lit_share, "%"),
         Metric::info(
             STEP,
             &name("CIEDE2000 mean over the whole object, unlit pixels included"),
-            whole_mean,
+            whole.mean,
             "dE00",
         ),
+        Metric::info(STEP, &name("CIEDE2000 mean over the object's lit pixels"), whole.lit_mean, "dE00"),
     ];
     // Where the target is darker than the projectors' black level and the room: the share,
     // and the error there (a low bound lowers the scale while the black level stays).
@@ -602,6 +621,13 @@ mod tests {
         let whole = "CIEDE2000 mean over the whole object, unlit pixels included";
         assert!(
             get("calibrated, formula", whole) > get("true model", whole) + 1.0,
+            "{}",
+            crate::eval::table(&rows)
+        );
+        // The lit pixels' mean leaves the hole out: it is the whole object's but for it.
+        let lit = "CIEDE2000 mean over the object's lit pixels";
+        assert!(
+            get("calibrated, formula", lit) < get("calibrated, formula", whole) - 0.5,
             "{}",
             crate::eval::table(&rows)
         );

@@ -206,7 +206,8 @@ pub fn run_chain(
         // Step 9 (per scene): what a visitor sees, rendered with the TRUE physics.
         let view = TruePhysics::view(&stage, &comp.frames);
         let (de_mean, de_p95, n) = colour_error(&comp, &view, &target);
-        let (_, de_object, object_px) = whole_object(&comp, &view, &target);
+        let whole = whole_object(&comp, &view, &target);
+        let (de_object, object_px) = (whole.mean, whole.pixels);
         let tp = true_peak(&stage, &comp.frames);
         let s = &comp.stats;
         // The pixels asking for less light than the black level and room give: shown lifted.
