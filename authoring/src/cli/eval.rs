@@ -92,9 +92,10 @@ pub enum EvalStep {
         /// Fraction of object points that may be dimmed on their own (as `compensate`'s).
         #[arg(long, default_value_t = restage_authoring::compensate::DEFAULT_CLIP_FRACTION)]
         clip_fraction: f64,
-        /// Let the model choose a larger clip fraction (as `compensate --auto-clip`).
-        #[arg(long)]
-        auto_clip: bool,
+        /// When the model may choose a larger clip fraction (as `compensate --auto-clip`).
+        #[arg(long, value_enum, default_value_t = restage_authoring::compensate::AutoClip::Lifted,
+              num_args = 0..=1, default_missing_value = "always")]
+        auto_clip: restage_authoring::compensate::AutoClip,
         /// Instead of the built-in scenes: a simulated capture, compensated with its true
         /// model and with `--stage` (what `calibrate` made of it), side by side.
         #[arg(long, requires = "stage")]

@@ -115,11 +115,8 @@ pub struct Params {
     /// Fraction of object points that may be dimmed locally (below the global scale) so that
     /// a few hard points do not darken the whole object; 0 is the paper's pure global scale.
     pub clip_fraction: f64,
-    /// Let the model choose a larger fraction ([`AUTO_CLIP`], never less than
-    /// `clip_fraction`) where it predicts the visitor's view closer to the target: at a low
-    /// bound the projectors' black level and the room lift a dim object, and a brighter scale
-    /// with more points dimmed on their own shows it better.
-    pub auto_clip: bool,
+    /// Whether the model may choose a larger fraction ([`AutoClip`]).
+    pub auto_clip: AutoClip,
     /// Camera pixels per light-certificate point along each axis (1 = every object point).
     pub reduction: u32,
     /// Rounds of footprint-aware refinement on the measured transport ([`footprint`]); 0 is
@@ -132,6 +129,27 @@ pub const MAX_FOOTPRINT_ROUNDS: u32 = 64;
 
 /// Default share of object points that may be dimmed on their own ([`Params::clip_fraction`]).
 pub const DEFAULT_CLIP_FRACTION: f64 = 0.01;
+
+/// When the stage model may choose a larger clip fraction than the one asked ([`AUTO_CLIP`],
+/// never less): at a low bound the projectors' black level and the room lift a dim object,
+/// and a brighter scale with more points dimmed on their own shows it better. Each candidate
+/// is compensated in full and its modelled view judged against the target ([`view_error`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum AutoClip {
+    /// Always the asked fraction.
+    Off,
+    /// Only where more than [`LIFTED_SHARE`] of the lit points ask, at the asked fraction, for
+    /// less light than the black level and the room give: there the choice is worth its cost
+    /// (about two more compensations); elsewhere it costs nothing.
+    #[default]
+    Lifted,
+    /// Always judge every candidate.
+    Always,
+}
+
+/// The share of lit points below the black level ([`below_black`]) above which compensation
+/// warns and [`AutoClip::Lifted`] lets the model choose the clip fraction.
+pub const LIFTED_SHARE: f64 = 0.05;
 
 /// The lux meter's accuracy assumed unless told: a class-B illuminance meter. DIN 5032-7
 /// (1985 edition) sets the total error limits ("Gesamtfehler") of its classes L, A, B and C at
@@ -157,7 +175,7 @@ impl Params {
             margin,
             meter_accuracy: DEFAULT_METER_ACCURACY,
             clip_fraction: DEFAULT_CLIP_FRACTION,
-            auto_clip: false,
+            auto_clip: AutoClip::default(),
             reduction: 2,
             footprint_rounds: footprint::DEFAULT_ROUNDS,
         };
@@ -275,6 +293,10 @@ pub struct Stats {
     /// chose ([`Params::auto_clip`]).
     #[serde(default)]
     pub clip_fraction: f64,
+    /// `[clip fraction, modelled CIEDE2000]` of each candidate the model judged, in order
+    /// ([`AutoClip`]); empty where it kept the asked fraction without judging.
+    #[serde(default)]
+    pub clip_judged: Vec<[f64; 2]>,
 }
 
 /// The covered camera pixels (some weight) whose target at scale `scale` asks, in some
@@ -519,7 +541,7 @@ pub fn compensate_on(
     let device = crate::gpu::select(device)?;
     // Draft, refinement, and the guarantee on the 8-bit frames (fix 3), at one clip fraction.
     let frames_at = |clip_fraction: f64| -> Result<Candidate, CompensateError> {
-        let p = Params { clip_fraction, auto_clip: false, ..params.clone() };
+        let p = Params { clip_fraction, auto_clip: AutoClip::Off, ..params.clone() };
         let mut draft = match device {
             Some(g) => gpu::draft(g, stage, prep, target, &p)?,
             None => draft_cpu(stage, prep, target, &p)?,
@@ -536,26 +558,47 @@ pub fn compensate_on(
         );
         Ok(Candidate { draft, refinement, unseen_dark, enf })
     };
-    let Candidate { draft, refinement, unseen_dark, enf } = if params.auto_clip {
+    let asked = frames_at(params.clip_fraction)?;
+    let choose = match params.auto_clip {
+        AutoClip::Off => false,
+        AutoClip::Always => true,
+        AutoClip::Lifted => {
+            let d = &asked.draft;
+            let dark = below_black(stage, target, &d.weights, d.scale).len();
+            let lifted = dark as f64 > LIFTED_SHARE * d.covered as f64;
+            if lifted {
+                tracing::info!(
+                    below_black = dark,
+                    covered = d.covered,
+                    "the black level lifts {:.1} % of the lit points: the model chooses the clip fraction",
+                    100.0 * dark as f64 / d.covered.max(1) as f64
+                );
+            }
+            lifted
+        }
+    };
+    let mut clip_judged = Vec::new();
+    let Candidate { draft, refinement, unseen_dark, enf } = if choose {
         // Each fraction compensated in full, and the stage model's view of its final frames
         // (blur, local dimming, the guarantee, black level) judged against the target.
         let idx = work_points(stage, &prep.geometry, target);
         let sample: Vec<u32> = idx.iter().step_by(idx.len().div_ceil(AUTO_SAMPLES).max(1)).copied().collect();
-        let judged = |f: f64| -> Result<(f64, Candidate), CompensateError> {
-            let c = frames_at(f)?;
+        let judged = |c: Candidate| -> (f64, Candidate) {
             let view = footprint::modelled_view(stage, prep, &c.draft.frames, &sample);
             let error = view_error(target, &sample, &view, c.draft.scale);
             tracing::info!(
-                clip_fraction = f,
+                clip_fraction = c.draft.clip_fraction,
                 scale = c.draft.scale,
                 modelled_delta_e = error,
                 "auto clip: candidate"
             );
-            Ok((error, c))
+            (error, c)
         };
-        let mut best = judged(params.clip_fraction)?;
+        let mut best = judged(asked);
+        clip_judged.push([best.1.draft.clip_fraction, best.0]);
         for f in AUTO_CLIP.iter().copied().filter(|&f| f > params.clip_fraction) {
-            let next = judged(f)?;
+            let next = judged(frames_at(f)?);
+            clip_judged.push([f, next.0]);
             // The first of equals: the smaller fraction.
             if next.0 < best.0 {
                 best = next;
@@ -569,7 +612,7 @@ pub fn compensate_on(
         );
         c
     } else {
-        frames_at(params.clip_fraction)?
+        asked
     };
     let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve, clip_fraction } = draft;
     if let Some(note) = clip_tradeoff(&curve, clip_fraction, scale) {
@@ -577,7 +620,7 @@ pub fn compensate_on(
     }
     let unlit = Unlit::count(stage, &prep.geometry, target);
     let dark = below_black(stage, target, &weights, scale).len();
-    if dark * 20 > covered {
+    if dark as f64 > LIFTED_SHARE * covered as f64 {
         tracing::warn!(
             "{dark} of {covered} lit points ({:.1} %) ask for less light than the projectors' black level \
              and the room give at this bound: they will look lifted (a higher bound, fewer or \
@@ -649,6 +692,7 @@ pub fn compensate_on(
             below_black: dark,
             scale_by_clip: curve,
             clip_fraction,
+            clip_judged,
         },
     })
 }
@@ -767,7 +811,13 @@ pub fn clip_curve_text(curve: &[[f64; 2]], scale: f64) -> String {
         .join(", ")
 }
 
-/// The clip fractions [`Params::auto_clip`] chooses from (those below the asked one are
+/// The candidates the model judged ([`Stats::clip_judged`]) as one line for logs and reports,
+/// e.g. `1.00 %: ΔE 3.41, 2.00 %: ΔE 2.97`; empty where it judged none.
+pub fn clip_judged_text(judged: &[[f64; 2]]) -> String {
+    judged.iter().map(|c| format!("{:.2} %: ΔE {:.2}", 100.0 * c[0], c[1])).collect::<Vec<_>>().join(", ")
+}
+
+/// The clip fractions [`AutoClip`] chooses from (those below the asked one are
 /// left out): the default and larger, never dimmer than the default.
 pub const AUTO_CLIP: [f64; 3] = [DEFAULT_CLIP_FRACTION, 0.02, 0.05];
 

@@ -180,7 +180,7 @@ pub fn save(
 <tr><td>m</td><td>{m}</td></tr>
 <tr><td>peak recomputed irradiance (final 8-bit frames, certificate)</td><td>{peak:.2} lx</td></tr>
 <tr><td>black level + room light alone, peak</td><td>{black:.2} lx (room {room:.2} lx)</td></tr>
-<tr><td>global scale s</td><td>{scale:.5} at clip fraction {cf:.2} %{curve}</td></tr>
+<tr><td>global scale s</td><td>{scale:.5} at clip fraction {cf:.2} %{curve}{judged}</td></tr>
 <tr><td>covered object points</td><td>{cov}</td></tr>
 <tr><td>limited by the bound / by projector saturation</td><td>{bb} ({bbp:.2} %) / {bs} ({bsp:.2} %)</td></tr>
 <tr><td>darker than the black level and room light give (shown lifted)</td><td>{bbl} ({bblp:.2} %)</td></tr>
@@ -215,6 +215,14 @@ pub fn save(
                 (false, None) => format!("; at other fractions, times this: {text}"),
                 (false, Some(n)) => format!("; at other fractions, times this: {text}<br>{n}"),
             }
+        },
+        judged = if s.clip_judged.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "<br>chosen by the stage model's view of each candidate (mean CIEDE2000): {}",
+                super::clip_judged_text(&s.clip_judged)
+            )
         },
         cov = s.covered_points,
         bb = s.limited_by_bound,

@@ -114,7 +114,12 @@ fn footprint_refinement_undoes_the_blur_the_formula_leaves() {
             *v = v.map(|c| c * 0.4);
         }
     }
-    let formula = Params { footprint_rounds: 0, ..Params::new(5000.0, Exponent::Finite(8.0), 0.05).unwrap() };
+    // One clip fraction for both, so that the scales compare.
+    let formula = Params {
+        footprint_rounds: 0,
+        auto_clip: AutoClip::Off,
+        ..Params::new(5000.0, Exponent::Finite(8.0), 0.05).unwrap()
+    };
     let refined = Params { footprint_rounds: 12, ..formula.clone() };
     let a = compensate(&s.model, &t, &formula).unwrap();
     let b = compensate(&s.model, &t, &refined).unwrap();
@@ -363,7 +368,7 @@ proptest! {
         let prep = Prepared::new(&s.model, 2).unwrap();
         let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
         let e_bound = black * bound_factor / ((1.0 - margin) * (1.0 - meter));
-        let p = Params { e_bound_lux: e_bound, m, margin, meter_accuracy: meter, clip_fraction: clip, auto_clip: false, reduction, footprint_rounds };
+        let p = Params { e_bound_lux: e_bound, m, margin, meter_accuracy: meter, clip_fraction: clip, auto_clip: AutoClip::Off, reduction, footprint_rounds };
         let c = compensate(&s.model, &t, &p).unwrap();
         prop_assert!(c.stats.peak_lux <= p.limit());
         // The bundle's light model allows exactly the limit compensation held to.
@@ -455,7 +460,7 @@ fn the_scale_at_other_clip_fractions_shows_what_a_few_hard_points_cost() {
 fn compensation_reports_the_scale_at_every_listed_clip_fraction() {
     let s = synthetic_stage(3, 11);
     let t = target(&s, 1);
-    let p = Params::new(120.0, Exponent::Finite(8.0), 0.05).unwrap();
+    let p = Params { auto_clip: AutoClip::Off, ..Params::new(120.0, Exponent::Finite(8.0), 0.05).unwrap() };
     let c = compensate(&s.model, &t, &p).unwrap();
     let curve = &c.stats.scale_by_clip;
     assert_eq!(curve.iter().map(|c| c[0]).collect::<Vec<_>>(), CLIP_CURVE.to_vec());
@@ -465,7 +470,7 @@ fn compensation_reports_the_scale_at_every_listed_clip_fraction() {
     assert!(curve.windows(2).all(|w| w[0][1] <= w[1][1]), "{curve:?}");
     // With the model choosing, the fraction is one it may choose, its scale is the curve's,
     // and the bound holds as at any scale.
-    let auto = Params { auto_clip: true, ..p.clone() };
+    let auto = Params { auto_clip: AutoClip::Always, ..p.clone() };
     let c = compensate(&s.model, &t, &auto).unwrap();
     assert!(AUTO_CLIP.contains(&c.stats.clip_fraction), "{}", c.stats.clip_fraction);
     let at = c.stats.scale_by_clip.iter().find(|e| e[0] == c.stats.clip_fraction).unwrap();
@@ -538,7 +543,7 @@ fn the_model_chooses_a_brighter_scale_only_where_the_black_level_lifts_the_view(
     let prep = Prepared::new(&model, 2).unwrap();
     let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
     let asked = Params::new(3.0 * black, Exponent::Finite(8.0), 0.05).unwrap();
-    let auto = Params { auto_clip: true, ..asked.clone() };
+    let auto = Params { auto_clip: AutoClip::Always, ..asked.clone() };
 
     // No black level, no room light in the camera's view: the bright scale would only flatten
     // the patch, so it is not taken (2 %, a few per cent brighter, may be: the patch's rim
@@ -557,6 +562,63 @@ fn the_model_chooses_a_brighter_scale_only_where_the_black_level_lifts_the_view(
     assert_eq!(c.stats.clip_fraction, 0.05);
     assert!(c.stats.scale > 1.25 * dim.stats.scale, "{} against {}", c.stats.scale, dim.stats.scale);
     assert!(c.stats.peak_lux <= auto.limit());
-    // Without auto_clip the asked fraction is kept whatever the view.
-    assert_eq!(compensate(&model, &t, &asked).unwrap().stats.clip_fraction, 0.01);
+    // The default lets the model choose here, where the grey is lifted, as `Always` does...
+    assert_eq!(asked.auto_clip, AutoClip::Lifted);
+    let lifted = compensate(&model, &t, &asked).unwrap();
+    assert_eq!(lifted.stats.clip_fraction, 0.05);
+    assert_eq!(lifted.stats.scale, c.stats.scale);
+    // ... and `Off` keeps the asked fraction whatever the view.
+    let off = Params { auto_clip: AutoClip::Off, ..asked.clone() };
+    assert_eq!(compensate(&model, &t, &off).unwrap().stats.clip_fraction, 0.01);
+}
+
+#[test]
+fn the_default_chooses_only_where_the_black_level_lifts_enough_of_the_object() {
+    // The same dim grey with its bright patch, and a black level that lifts a band of darker
+    // grey: 3 % of the object (under `LIFTED_SHARE`) leaves the asked fraction alone, 20 %
+    // lets the model choose.
+    let s = synthetic_stage(3, 11);
+    let mut model = s.model.clone();
+    let (w, h) = (model.camera.width, model.camera.height);
+    let prep = Prepared::new(&model, 2).unwrap();
+    let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
+    let asked = Params::new(3.0 * black, Exponent::Finite(8.0), 0.05).unwrap();
+    let with_band = |rows: u32| {
+        let mut t = LinearImage::new(w, h).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let patch = (2 * w / 5..3 * w / 5).contains(&x) && (2 * h / 5..3 * h / 5).contains(&y);
+                t.set(
+                    x,
+                    y,
+                    if patch {
+                        [1.0; 3]
+                    } else if y < rows {
+                        [0.01; 3]
+                    } else {
+                        [0.1; 3]
+                    },
+                );
+            }
+        }
+        t
+    };
+    model.ambient.iter_mut().for_each(|a| *a = [0.0; 3]);
+    let probe =
+        compensate(&model, &with_band(0), &Params { auto_clip: AutoClip::Off, ..asked.clone() }).unwrap();
+    // Between the band's light and the grey's at the asked scale.
+    model.ambient.iter_mut().for_each(|a| *a = [0.03 * probe.stats.scale as f32; 3]);
+    for (share, chooses) in [(0.03, false), (0.2, true)] {
+        let t = with_band((share * f64::from(h)).round() as u32);
+        let c = compensate(&model, &t, &asked).unwrap();
+        let lifted = c.stats.below_black as f64 / c.stats.covered_points as f64;
+        assert_eq!(lifted > LIFTED_SHARE, chooses, "{lifted:.3} of the lit points lifted");
+        // Where it chooses, the brighter scale wins as in the test above: the lifted band
+        // outweighs the patch dimmed on its own.
+        let want = if chooses { 0.05 } else { asked.clip_fraction };
+        assert_eq!(c.stats.clip_fraction, want, "{lifted:.3} lifted");
+        let judged: Vec<f64> = c.stats.clip_judged.iter().map(|j| j[0]).collect();
+        assert_eq!(judged, if chooses { AUTO_CLIP.to_vec() } else { vec![] }, "{lifted:.3} lifted");
+        assert!(c.stats.peak_lux <= asked.limit());
+    }
 }

@@ -273,7 +273,8 @@ pub struct CompensateSettings {
     pub m: Option<f64>,
     pub margin: f64,
     pub clip_fraction: f64,
-    /// `--auto-clip`: the stage model may choose a larger clip fraction.
+    /// `--auto-clip`: the stage model always chooses the clip fraction (unset: only where the
+    /// black level lifts the view, `compensate`'s default).
     pub auto_clip: bool,
     pub reduction: u32,
     /// `auto`, `cpu` or `gpu`.

@@ -37,11 +37,15 @@ pub struct Args {
     /// Fraction of object points that may be dimmed locally rather than darkening everything.
     #[arg(long, default_value_t = compensate::DEFAULT_CLIP_FRACTION)]
     pub clip_fraction: f64,
-    /// Let the stage model choose a larger clip fraction (up to 5 %) where it predicts the
-    /// visitor's view closer to the target: at a low bound the black level lifts a dim object,
-    /// and a brighter one with more points dimmed on their own looks more like the target.
-    #[arg(long)]
-    pub auto_clip: bool,
+    /// When the stage model may choose a larger clip fraction (1, 2 or 5 %, never below
+    /// --clip-fraction), keeping the one whose modelled view is closest to the target: at a low
+    /// bound the black level lifts a dim object, and a brighter one with more points dimmed on
+    /// their own looks more like the target. `lifted`: only where more than 5 % of the lit
+    /// points ask for less light than the black level gives; `always` (also a bare
+    /// `--auto-clip`); `off`: the asked fraction whatever the view.
+    #[arg(long, value_enum, default_value_t = compensate::AutoClip::Lifted, num_args = 0..=1,
+          default_missing_value = "always")]
+    pub auto_clip: compensate::AutoClip,
     /// Camera pixels per light-certificate point along each axis.
     #[arg(long, default_value_t = 2)]
     pub reduction: u32,

@@ -434,12 +434,14 @@ impl App {
                 "Fraction of the object's points (--clip-fraction) that may be dimmed on their own \
                  rather than darkening everything; 0.01 = 1 %.",
             );
-        ui.checkbox(&mut s.compensate.auto_clip, "let the model choose a larger fraction").on_hover_text(
-            "--auto-clip: compensates at 1, 2 and 5 % (never below the clip fraction) and keeps the \
+        ui.checkbox(&mut s.compensate.auto_clip, "always let the model choose a larger fraction")
+            .on_hover_text(
+                "--auto-clip: compensates at 1, 2 and 5 % (never below the clip fraction) and keeps the \
              one whose modelled view is closest to the target. At a low bound the projectors' black \
              level lifts a dim object; a brighter scale with more points dimmed on their own can \
-             look more like it. Takes about three times as long.",
-        );
+             look more like it. Takes about three times as long. Unticked, the model chooses only \
+             where more than 5 % of the lit object asks for less light than the black level gives.",
+            );
     }
 
     fn lighting_ui(&mut self, ui: &mut egui::Ui) {

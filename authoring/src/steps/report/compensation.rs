@@ -144,6 +144,13 @@ impl Page<'_> {
                     )
                     .map_or(String::new(), |n| format!("<br>{}", esc(&n)))
                 )
+            } + &if st.clip_judged.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "<tr><th scope=\"row\">clip fraction chosen by the modelled view (mean CIEDE2000)</th><td>{}</td></tr>",
+                    esc(&restage_authoring::compensate::clip_judged_text(&st.clip_judged))
+                )
             },
             st.rounds,
             st.dimmed_pixels,
