@@ -575,7 +575,7 @@ fn the_model_chooses_a_brighter_scale_only_where_the_black_level_lifts_the_view(
 #[test]
 fn the_default_chooses_only_where_the_black_level_lifts_enough_of_the_object() {
     // The same dim grey with its bright patch, and a black level that lifts a band of darker
-    // grey: 3 % of the object (under `LIFTED_SHARE`) leaves the asked fraction alone, 20 %
+    // grey: 3 % of the lit object (under `LIFTED_SHARE`) leaves the asked fraction alone, 20 %
     // lets the model choose.
     let s = synthetic_stage(3, 11);
     let mut model = s.model.clone();
@@ -583,36 +583,36 @@ fn the_default_chooses_only_where_the_black_level_lifts_enough_of_the_object() {
     let prep = Prepared::new(&model, 2).unwrap();
     let black = prep.floor.iter().map(|b| bound_lux(*b)).fold(0.0, f64::max) + prep.certificate.ambient_lux;
     let asked = Params::new(3.0 * black, Exponent::Finite(8.0), 0.05).unwrap();
-    let with_band = |rows: u32| {
+    let off = Params { auto_clip: AutoClip::Off, ..asked.clone() };
+    let patch = |i: usize| {
+        let (x, y) = ((i % w as usize) as u32, (i / w as usize) as u32);
+        (2 * w / 5..3 * w / 5).contains(&x) && (2 * h / 5..3 * h / 5).contains(&y)
+    };
+    let grey = |band: &[usize]| {
         let mut t = LinearImage::new(w, h).unwrap();
-        for y in 0..h {
-            for x in 0..w {
-                let patch = (2 * w / 5..3 * w / 5).contains(&x) && (2 * h / 5..3 * h / 5).contains(&y);
-                t.set(
-                    x,
-                    y,
-                    if patch {
-                        [1.0; 3]
-                    } else if y < rows {
-                        [0.01; 3]
-                    } else {
-                        [0.1; 3]
-                    },
-                );
-            }
+        for (i, v) in t.data.iter_mut().enumerate() {
+            *v = if patch(i) { [1.0; 3] } else { [0.1; 3] };
+        }
+        for &i in band {
+            t.data[i] = [0.01; 3];
         }
         t
     };
     model.ambient.iter_mut().for_each(|a| *a = [0.0; 3]);
-    let probe =
-        compensate(&model, &with_band(0), &Params { auto_clip: AutoClip::Off, ..asked.clone() }).unwrap();
+    let probe = compensate(&model, &grey(&[]), &off).unwrap();
+    // The band: the first lit pixels off the patch, in raster order.
+    let kn = probe.frames.len();
+    let lit: Vec<usize> = (0..probe.weights.len() / kn)
+        .filter(|&i| !patch(i) && probe.weights[i * kn..(i + 1) * kn].iter().any(|&w| w > 0.0))
+        .collect();
     // Between the band's light and the grey's at the asked scale.
     model.ambient.iter_mut().for_each(|a| *a = [0.03 * probe.stats.scale as f32; 3]);
     for (share, chooses) in [(0.03, false), (0.2, true)] {
-        let t = with_band((share * f64::from(h)).round() as u32);
+        let t = grey(&lit[..(share * probe.stats.covered_points as f64) as usize]);
+        let at_asked = compensate(&model, &t, &off).unwrap();
+        let lifted = at_asked.stats.below_black as f64 / at_asked.stats.covered_points as f64;
+        assert!((lifted - share).abs() < 0.01, "{lifted:.3} of the lit points lifted, {share} asked");
         let c = compensate(&model, &t, &asked).unwrap();
-        let lifted = c.stats.below_black as f64 / c.stats.covered_points as f64;
-        assert_eq!(lifted > LIFTED_SHARE, chooses, "{lifted:.3} of the lit points lifted");
         // Where it chooses, the brighter scale wins as in the test above: the lifted band
         // outweighs the patch dimmed on its own.
         let want = if chooses { 0.05 } else { asked.clip_fraction };
