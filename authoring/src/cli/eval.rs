@@ -94,7 +94,7 @@ pub enum EvalStep {
         clip_fraction: f64,
         /// When the model may choose a larger clip fraction (as `compensate --auto-clip`).
         #[arg(long, value_enum, default_value_t = restage_authoring::compensate::AutoClip::Lifted,
-              num_args = 0..=1, default_missing_value = "always")]
+              num_args = 0..=1, require_equals = true, default_missing_value = "always")]
         auto_clip: restage_authoring::compensate::AutoClip,
         /// Instead of the built-in scenes: a simulated capture, compensated with its true
         /// model and with `--stage` (what `calibrate` made of it), side by side.

@@ -42,9 +42,10 @@ pub struct Args {
     /// bound the black level lifts a dim object, and a brighter one with more points dimmed on
     /// their own looks more like the target. `lifted`: only where more than 5 % of the lit
     /// points ask for less light than the black level gives; `always` (also a bare
-    /// `--auto-clip`); `off`: the asked fraction whatever the view.
+    /// `--auto-clip`); `off`: the asked fraction whatever the view. A value takes `=`
+    /// (`--auto-clip=off`), so that a bare `--auto-clip` never swallows the next argument.
     #[arg(long, value_enum, default_value_t = compensate::AutoClip::Lifted, num_args = 0..=1,
-          default_missing_value = "always")]
+          require_equals = true, default_missing_value = "always")]
     pub auto_clip: compensate::AutoClip,
     /// Camera pixels per light-certificate point along each axis.
     #[arg(long, default_value_t = 2)]
@@ -175,4 +176,40 @@ pub fn run_prepared(args: &Args, stage: &StageModel, prep: &Prepared) -> Result<
         stage.camera.height,
     )?;
     Ok(CompensateSummary { stats: comp.stats, projectors: stage.projectors.len(), out: args.out.clone() })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{StepCommand, parse_line};
+    use restage_authoring::compensate::AutoClip;
+
+    fn auto_clip(line: &str) -> anyhow::Result<(AutoClip, String)> {
+        let args: Vec<String> = line.split_whitespace().map(String::from).collect();
+        match parse_line(&args)? {
+            StepCommand::Compensate(a) => Ok((a.auto_clip, a.stage_dir.display().to_string())),
+            _ => anyhow::bail!("not a compensate line"),
+        }
+    }
+
+    #[test]
+    fn auto_clip_is_lifted_unless_told_and_a_bare_flag_takes_no_argument() {
+        let tail = "--ebound-lux 50 --out f";
+        assert_eq!(auto_clip(&format!("compensate st r.png {tail}")).unwrap().0, AutoClip::Lifted);
+        // A bare flag before the positionals, as the flag was written when it took no value.
+        assert_eq!(
+            auto_clip(&format!("compensate --auto-clip st r.png {tail}")).unwrap(),
+            (AutoClip::Always, "st".into())
+        );
+        assert_eq!(
+            auto_clip(&format!("compensate st r.png {tail} --auto-clip")).unwrap().0,
+            AutoClip::Always
+        );
+        for (v, want) in [("off", AutoClip::Off), ("lifted", AutoClip::Lifted), ("always", AutoClip::Always)]
+        {
+            assert_eq!(auto_clip(&format!("compensate st r.png --auto-clip={v} {tail}")).unwrap().0, want);
+        }
+        let e =
+            auto_clip(&format!("compensate st r.png --auto-clip=sometimes {tail}")).unwrap_err().to_string();
+        assert!(e.contains("sometimes") && e.contains("lifted"), "{e}");
+    }
 }
