@@ -556,29 +556,28 @@ pub fn compensate_on(
             rounds = enf.rounds,
             "compensate: guarantee done"
         );
-        Ok(Candidate { draft, refinement, unseen_dark, enf })
+        let dark = below_black(stage, target, &draft.weights, draft.scale).len();
+        Ok(Candidate { draft, refinement, unseen_dark, enf, dark })
     };
     let asked = frames_at(params.clip_fraction)?;
     let choose = match params.auto_clip {
         AutoClip::Off => false,
         AutoClip::Always => true,
         AutoClip::Lifted => {
-            let d = &asked.draft;
-            let dark = below_black(stage, target, &d.weights, d.scale).len();
-            let lifted = dark as f64 > LIFTED_SHARE * d.covered as f64;
-            if lifted {
+            let (dark, covered) = (asked.dark, asked.draft.covered);
+            if lifted(dark, covered) {
                 tracing::info!(
                     below_black = dark,
-                    covered = d.covered,
+                    covered,
                     "the black level lifts {:.1} % of the lit points: the model chooses the clip fraction",
-                    100.0 * dark as f64 / d.covered.max(1) as f64
+                    100.0 * dark as f64 / covered.max(1) as f64
                 );
             }
-            lifted
+            lifted(dark, covered)
         }
     };
     let mut clip_judged = Vec::new();
-    let Candidate { draft, refinement, unseen_dark, enf } = if choose {
+    let Candidate { draft, refinement, unseen_dark, enf, dark } = if choose {
         // Each fraction compensated in full, and the stage model's view of its final frames
         // (blur, local dimming, the guarantee, black level) judged against the target.
         let idx = work_points(stage, &prep.geometry, target);
@@ -619,8 +618,7 @@ pub fn compensate_on(
         tracing::info!("{note}");
     }
     let unlit = Unlit::count(stage, &prep.geometry, target);
-    let dark = below_black(stage, target, &weights, scale).len();
-    if dark as f64 > LIFTED_SHARE * covered as f64 {
+    if lifted(dark, covered) {
         tracing::warn!(
             "{dark} of {covered} lit points ({:.1} %) ask for less light than the projectors' black level \
              and the room give at this bound: they will look lifted (a higher bound, fewer or \
@@ -704,6 +702,13 @@ struct Candidate {
     refinement: Option<footprint::Refinement>,
     unseen_dark: usize,
     enf: guarantee::Enforcement,
+    /// Covered points below the black level at the draft's scale ([`below_black`]).
+    dark: usize,
+}
+
+/// Whether `dark` of `covered` lit points below the black level are more than [`LIFTED_SHARE`].
+fn lifted(dark: usize, covered: usize) -> bool {
+    dark as f64 > LIFTED_SHARE * covered as f64
 }
 
 /// Compensation before the guarantee: the weights, the global scale and the frames as
