@@ -138,9 +138,9 @@ pub const DEFAULT_CLIP_FRACTION: f64 = 0.01;
 pub enum AutoClip {
     /// Always the asked fraction.
     Off,
-    /// Only where more than [`LIFTED_SHARE`] of the lit points ask, at the asked fraction, for
-    /// less light than the black level and the room give: there the choice is worth its cost
-    /// (about two more compensations); elsewhere it costs nothing.
+    /// Only where more than 5 % of the lit points (`LIFTED_SHARE`) ask, at the asked fraction,
+    /// for less light than the black level and the room give: there the choice is worth its
+    /// cost (about two more compensations); elsewhere it costs nothing.
     #[default]
     Lifted,
     /// Always judge every candidate.

@@ -212,4 +212,13 @@ mod tests {
             auto_clip(&format!("compensate st r.png --auto-clip=sometimes {tail}")).unwrap_err().to_string();
         assert!(e.contains("sometimes") && e.contains("lifted"), "{e}");
     }
+
+    /// The help a user reads names the share as a number, not as rustdoc's link to it.
+    #[test]
+    fn the_lifted_help_names_the_share_it_uses() {
+        use clap::ValueEnum;
+        let help = AutoClip::Lifted.to_possible_value().unwrap().get_help().unwrap().to_string();
+        let share = format!("{} %", 100.0 * restage_authoring::compensate::LIFTED_SHARE);
+        assert!(help.contains(&share) && !help.contains("[`"), "{help}");
+    }
 }
