@@ -40,8 +40,9 @@ fn bench(c: &mut Criterion) {
     g.bench_function("3 x 1400x1050 frames from 1600x1200", |b| {
         b.iter(|| compensate_prepared(&s.model, &prep, &target, &params).unwrap())
     });
-    // With the model choosing the clip fraction: up to three fractions compensated in full and
-    // the modelled view of each judged.
+    // With the model choosing the clip fraction: the formula's frames at each candidate
+    // fraction (`AUTO_CLIP`, then halfway to the best's neighbours) judged by their modelled
+    // view, the chosen one finished.
     let auto = Params { auto_clip: AutoClip::Always, ..params.clone() };
     g.bench_function("3 x 1400x1050 frames from 1600x1200, auto clip", |b| {
         b.iter(|| compensate_prepared(&s.model, &prep, &target, &auto).unwrap())
@@ -92,6 +93,15 @@ fn bench(c: &mut Criterion) {
     g.bench_function(
         format!("3 x 1400x1050 frames from 1600x1200, {} footprint rounds", params.footprint_rounds),
         |b| b.iter(|| compensate_prepared(&with_footprints, &prep, &target, &params).unwrap()),
+    );
+    // The model choosing as well: the candidates judged on the formula, only the chosen one
+    // refined.
+    g.bench_function(
+        format!(
+            "3 x 1400x1050 frames from 1600x1200, {} footprint rounds, auto clip",
+            params.footprint_rounds
+        ),
+        |b| b.iter(|| compensate_prepared(&with_footprints, &prep, &target, &auto).unwrap()),
     );
     g.finish();
 }

@@ -16,7 +16,7 @@
 //! holds whatever the refinement does.
 //!
 //! The same light model predicts what the camera sees from any frames ([`modelled_view`]):
-//! `--auto-clip` judges each candidate clip fraction's final frames by it.
+//! `--auto-clip` judges each candidate clip fraction's frames by it.
 
 use image::RgbImage;
 use rayon::prelude::*;
@@ -162,21 +162,36 @@ fn delivered(
     e
 }
 
+/// Every projector's measured footprints turned around per camera pixel (empty where the
+/// model has none, and the formula's assumption stands): built once, read by the refinement
+/// and by each [`modelled_view`].
+pub struct Footprints(Vec<Columns>);
+
+impl Footprints {
+    pub fn of(stage: &StageModel, prep: &Prepared) -> Self {
+        Footprints(if has_footprints(stage) {
+            (0..prep.geometry.projectors).into_par_iter().map(|k| columns(stage, prep, k)).collect()
+        } else {
+            Vec::new()
+        })
+    }
+}
+
 /// What the stage model says the camera sees at each of the points `idx` when the projectors
 /// show `frames`: black level and room light (`stage.ambient`) plus the gain times the
 /// delivered light, blurred through the measured footprints where the model has them.
-pub fn modelled_view(stage: &StageModel, prep: &Prepared, frames: &[RgbImage], idx: &[u32]) -> Vec<[f64; 3]> {
-    let geom = &prep.geometry;
-    let cols: Vec<Columns> = if has_footprints(stage) {
-        (0..geom.projectors).into_par_iter().map(|k| columns(stage, prep, k)).collect()
-    } else {
-        Vec::new()
-    };
+pub fn modelled_view(
+    stage: &StageModel,
+    prep: &Prepared,
+    footprints: &Footprints,
+    frames: &[RgbImage],
+    idx: &[u32],
+) -> Vec<[f64; 3]> {
     let out = outputs(stage, frames);
     idx.par_iter()
         .map(|&i| {
             let i = i as usize;
-            let e = delivered(stage, geom, &cols, &out, i);
+            let e = delivered(stage, &prep.geometry, &footprints.0, &out, i);
             std::array::from_fn(|c| {
                 f64::from(stage.ambient[i][c]) + f64::from(stage.gain[i][c]) * f64::from(e[c])
             })
@@ -214,7 +229,7 @@ pub fn refine(
     for (&i, d) in idx.iter().zip(&demand) {
         want[i as usize] = d.map(|v| v as f32);
     }
-    let cols: Vec<Columns> = (0..kn).into_par_iter().map(|k| columns(stage, prep, k)).collect();
+    let Footprints(cols) = Footprints::of(stage, prep);
     let mut out = outputs(stage, &draft.frames);
 
     // Per camera pixel, demand minus the light the footprints say the outputs give.

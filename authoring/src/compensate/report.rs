@@ -219,10 +219,7 @@ pub fn save(
         judged = if s.clip_judged.is_empty() {
             String::new()
         } else {
-            format!(
-                "<br>chosen by the stage model's view of each candidate (mean CIEDE2000): {}",
-                super::clip_judged_text(&s.clip_judged)
-            )
+            format!("<br>{}: {}", super::CLIP_JUDGED_CAPTION, super::clip_judged_text(&s.clip_judged))
         },
         cov = s.covered_points,
         bb = s.limited_by_bound,

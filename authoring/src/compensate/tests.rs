@@ -472,9 +472,33 @@ fn compensation_reports_the_scale_at_every_listed_clip_fraction() {
     // and the bound holds as at any scale.
     let auto = Params { auto_clip: AutoClip::Always, ..p.clone() };
     let c = compensate(&s.model, &t, &auto).unwrap();
-    assert!(AUTO_CLIP.contains(&c.stats.clip_fraction), "{}", c.stats.clip_fraction);
-    let at = c.stats.scale_by_clip.iter().find(|e| e[0] == c.stats.clip_fraction).unwrap();
-    assert_eq!(at[1], c.stats.scale);
+    let judged: Vec<f64> = c.stats.clip_judged.iter().map(|j| j[0]).collect();
+    assert!(judged.contains(&c.stats.clip_fraction), "{} of {judged:?}", c.stats.clip_fraction);
+    assert!(AUTO_CLIP.iter().all(|f| judged.contains(f)), "{judged:?}");
+    assert!(judged.windows(2).all(|w| w[0] < w[1]), "{judged:?}");
+    // Beyond the grid, exactly the fractions halfway to the best's neighbours on it...
+    let on_grid: Vec<f64> =
+        AUTO_CLIP.iter().map(|f| c.stats.clip_judged.iter().find(|j| j[0] == *f).unwrap()[1]).collect();
+    let best = (0..on_grid.len()).min_by(|&a, &b| on_grid[a].total_cmp(&on_grid[b])).unwrap();
+    let halfway: Vec<f64> = [best.checked_sub(1), Some(best + 1)]
+        .into_iter()
+        .flatten()
+        .filter_map(|n| AUTO_CLIP.get(n))
+        .map(|f| 0.5 * (f + AUTO_CLIP[best]))
+        .collect();
+    let off_grid: Vec<f64> = judged.iter().copied().filter(|f| !AUTO_CLIP.contains(f)).collect();
+    assert_eq!(off_grid, halfway, "best on the grid {}", AUTO_CLIP[best]);
+    // ... and the fraction taken is one of the two the formula's frames judged best.
+    let mut order = c.stats.clip_judged.clone();
+    order.sort_by(|a, b| a[1].total_cmp(&b[1]));
+    assert!(order[..2].iter().any(|j| j[0] == c.stats.clip_fraction), "{order:?}");
+    // Its scale lies on the curve: between the listed fractions around it.
+    let curve = &c.stats.scale_by_clip;
+    let below = curve.iter().rfind(|e| e[0] <= c.stats.clip_fraction).unwrap();
+    assert!(below[1] <= c.stats.scale, "{} under {below:?}", c.stats.scale);
+    if let Some(above) = curve.iter().find(|e| e[0] >= c.stats.clip_fraction) {
+        assert!(c.stats.scale <= above[1], "{} over {above:?}", c.stats.scale);
+    }
     assert!(c.stats.peak_lux <= auto.limit());
     assert!(true_peak(&s, &c.frames) <= auto.e_bound_lux);
 }
@@ -507,7 +531,13 @@ fn the_modelled_view_is_what_the_stage_shows() {
     let c = compensate(&s.model, &t, &Params::new(5000.0, Exponent::Finite(8.0), 0.05).unwrap()).unwrap();
     let prep = Prepared::new(&s.model, 2).unwrap();
     let idx = work_points(&s.model, &prep.geometry, &t);
-    let view = footprint::modelled_view(&s.model, &prep, &c.frames, &idx);
+    let view = footprint::modelled_view(
+        &s.model,
+        &prep,
+        &footprint::Footprints::of(&s.model, &prep),
+        &c.frames,
+        &idx,
+    );
     let truth = s.view(&c.frames);
     let (mut sum, mut count) = (0.0, 0);
     for (&i, v) in idx.iter().zip(&view) {
@@ -546,26 +576,27 @@ fn the_model_chooses_a_brighter_scale_only_where_the_black_level_lifts_the_view(
     let auto = Params { auto_clip: AutoClip::Always, ..asked.clone() };
 
     // No black level, no room light in the camera's view: the bright scale would only flatten
-    // the patch, so it is not taken (2 %, a few per cent brighter, may be: the patch's rim
-    // is blurred anyway).
+    // the patch, so it is not taken (a fraction within the patch's share, a little brighter,
+    // may be: the patch's rim is blurred anyway).
     model.ambient.iter_mut().for_each(|a| *a = [0.0; 3]);
     let dim = compensate(&model, &t, &asked).unwrap();
     assert_eq!(dim.stats.clip_fraction, 0.01);
     let c = compensate(&model, &t, &auto).unwrap();
-    assert!(c.stats.clip_fraction < 0.05, "{}", c.stats.clip_fraction);
-    assert!(c.stats.scale < 1.1 * dim.stats.scale, "{} against {}", c.stats.scale, dim.stats.scale);
+    assert!(c.stats.clip_fraction < 0.04, "{:?}", c.stats.clip_judged);
+    assert!(c.stats.scale < 1.25 * dim.stats.scale, "{} against {}", c.stats.scale, dim.stats.scale);
 
     // Black level and room light half as bright again as the grey's light at the dim scale:
     // there the grey shows lifted by half; at the bright scale only the patch is wrong.
     model.ambient.iter_mut().for_each(|a| *a = [0.15 * dim.stats.scale as f32; 3]);
+    // (Past 5 % the grey's own darker points set the scale, and the model may go on a little.)
     let c = compensate(&model, &t, &auto).unwrap();
-    assert_eq!(c.stats.clip_fraction, 0.05);
+    assert!(c.stats.clip_fraction >= 0.05, "{:?}", c.stats.clip_judged);
     assert!(c.stats.scale > 1.25 * dim.stats.scale, "{} against {}", c.stats.scale, dim.stats.scale);
     assert!(c.stats.peak_lux <= auto.limit());
     // The default lets the model choose here, where the grey is lifted, as `Always` does...
     assert_eq!(asked.auto_clip, AutoClip::Lifted);
     let lifted = compensate(&model, &t, &asked).unwrap();
-    assert_eq!(lifted.stats.clip_fraction, 0.05);
+    assert_eq!(lifted.stats.clip_fraction, c.stats.clip_fraction);
     assert_eq!(lifted.stats.scale, c.stats.scale);
     // ... and `Off` keeps the asked fraction whatever the view.
     let off = Params { auto_clip: AutoClip::Off, ..asked.clone() };
@@ -613,12 +644,16 @@ fn the_default_chooses_only_where_the_black_level_lifts_enough_of_the_object() {
         let lifted = at_asked.stats.below_black as f64 / at_asked.stats.covered_points as f64;
         assert!((lifted - share).abs() < 0.01, "{lifted:.3} of the lit points lifted, {share} asked");
         let c = compensate(&model, &t, &asked).unwrap();
-        // Where it chooses, the brighter scale wins as in the test above: the lifted band
+        // Where it chooses, a brighter scale wins as in the test above: the lifted band
         // outweighs the patch dimmed on its own.
-        let want = if chooses { 0.05 } else { asked.clip_fraction };
-        assert_eq!(c.stats.clip_fraction, want, "{lifted:.3} lifted");
         let judged: Vec<f64> = c.stats.clip_judged.iter().map(|j| j[0]).collect();
-        assert_eq!(judged, if chooses { AUTO_CLIP.to_vec() } else { vec![] }, "{lifted:.3} lifted");
+        if chooses {
+            assert!(AUTO_CLIP.iter().all(|f| judged.contains(f)), "{judged:?}");
+            assert!(c.stats.scale > 1.25 * at_asked.stats.scale, "{:?}", c.stats.clip_judged);
+        } else {
+            assert_eq!(c.stats.clip_fraction, asked.clip_fraction, "{lifted:.3} lifted");
+            assert_eq!(judged, Vec::<f64>::new(), "{lifted:.3} lifted");
+        }
         assert!(c.stats.peak_lux <= asked.limit());
     }
 }

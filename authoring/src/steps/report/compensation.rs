@@ -148,7 +148,8 @@ impl Page<'_> {
                 String::new()
             } else {
                 format!(
-                    "<tr><th scope=\"row\">clip fraction chosen by the modelled view (mean CIEDE2000)</th><td>{}</td></tr>",
+                    "<tr><th scope=\"row\">{}</th><td>{}</td></tr>",
+                    esc(restage_authoring::compensate::CLIP_JUDGED_CAPTION),
                     esc(&restage_authoring::compensate::clip_judged_text(&st.clip_judged))
                 )
             },
