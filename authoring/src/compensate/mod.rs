@@ -133,7 +133,7 @@ pub const DEFAULT_CLIP_FRACTION: f64 = 0.01;
 /// When the stage model may choose a larger clip fraction than the one asked ([`AUTO_CLIP`],
 /// never less): at a low bound the projectors' black level and the room lift a dim object,
 /// and a brighter scale with more points dimmed on their own shows it better. Each candidate's
-/// formula frames are judged by their modelled view against the target ([`choose_clip`]).
+/// formula frames are judged by their modelled view against the target (`choose_clip`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum AutoClip {
     /// Always the asked fraction.
