@@ -22,6 +22,15 @@ struct Stage {
     port: u16,
 }
 
+/// One test of this file at a time, held from before its simulators take their ports: the
+/// status page's port is picked free and bound by the appliance only a moment later, so a
+/// test running beside could take the same one (seen once in CI: one test read the other's
+/// page). A test that failed while holding it leaves nothing the next one minds.
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    SERIAL.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 impl Stage {
     fn new(hours: &str, projectors: &[&SimProjector]) -> Stage {
         let dir = tempfile::tempdir().unwrap();
@@ -119,6 +128,7 @@ fn runtime() -> tokio::runtime::Runtime {
 
 #[test]
 fn open_stage_powers_the_projectors_reports_them_and_mutes_when_dark() {
+    let _serial = serial();
     let rt = runtime();
     let good = rt.block_on(SimProjector::start(SimConfig::default())).unwrap();
     let lamp = rt
@@ -167,6 +177,7 @@ fn open_stage_powers_the_projectors_reports_them_and_mutes_when_dark() {
 
 #[test]
 fn closed_stage_keeps_the_projectors_in_standby_and_refuses_presses() {
+    let _serial = serial();
     let rt = runtime();
     let sim = rt
         .block_on(SimProjector::start(SimConfig { power: PowerState::On, ..SimConfig::default() }))
