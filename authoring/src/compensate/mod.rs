@@ -868,8 +868,9 @@ pub fn clip_curve_text(curve: &[[f64; 2]], scale: f64) -> String {
 }
 
 /// What both reports call [`Stats::clip_judged`].
-pub const CLIP_JUDGED_CAPTION: &str = "clip fraction chosen by the modelled view (mean CIEDE2000 of each fraction's \
-     formula frames; the best two judged again after the footprint rounds)";
+pub const CLIP_JUDGED_CAPTION: &str = "clip fraction chosen by the modelled view (mean CIEDE2000 of \
+     each fraction's formula frames; where footprints were measured, the best two judged again \
+     after the footprint rounds)";
 
 /// The candidates the model judged ([`Stats::clip_judged`]) as one line for logs and reports,
 /// e.g. `1.00 %: ΔE 3.41, 2.00 %: ΔE 2.97`; empty where it judged none.
