@@ -297,6 +297,11 @@ pub struct Stats {
     /// judged, in order ([`AutoClip`]); empty where it kept the asked fraction without judging.
     #[serde(default)]
     pub clip_judged: Vec<[f64; 2]>,
+    /// `[clip fraction, modelled CIEDE2000 after the footprint rounds]` of the two best of
+    /// `clip_judged`, which were refined and judged again (the lower taken); empty where
+    /// nothing was refined.
+    #[serde(default)]
+    pub clip_refined: Vec<[f64; 2]>,
 }
 
 /// The covered camera pixels (some weight) whose target at scale `scale` asks, in some
@@ -581,13 +586,15 @@ pub fn compensate_on(
             lifts
         }
     };
-    let (chosen, clip_judged) = if choose {
-        choose_clip(stage, prep, target, params, asked, &draft_at, &finish)?
+    let (chosen, clip_judged, clip_refined, dark) = if choose {
+        let ClipChoice { chosen: c, judged, refined } =
+            choose_clip(stage, prep, target, params, asked, &draft_at, &finish)?;
+        let dark = below_black(stage, target, &c.draft.weights, c.draft.scale).len();
+        (c, judged, refined, dark)
     } else {
-        (finish(asked, params.footprint_rounds), Vec::new())
+        (finish(asked, params.footprint_rounds), Vec::new(), Vec::new(), asked_dark)
     };
     let Candidate { draft, refinement, unseen_dark, enf } = chosen;
-    let dark = below_black(stage, target, &draft.weights, draft.scale).len();
     let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve, clip_fraction } = draft;
     if let Some(note) = clip_tradeoff(&curve, clip_fraction, scale) {
         tracing::info!("{note}");
@@ -666,6 +673,7 @@ pub fn compensate_on(
             scale_by_clip: curve,
             clip_fraction,
             clip_judged,
+            clip_refined,
         },
     })
 }
@@ -676,8 +684,10 @@ pub fn compensate_on(
 /// calibrated jar at 50 lx), each judged on the formula's frames under the guarantee
 /// ([`view_error`] of the [`footprint::modelled_view`]). The footprint rounds cost several
 /// times the formula and improve some fractions more than others, so the best two are refined
-/// and judged again, and the better of them taken. Returns it and each judged `[fraction,
-/// modelled error of the formula's frames]` in order of fraction. Where none can be judged
+/// and judged again, and the better of them taken. Returns it, each judged `[fraction,
+/// modelled error of the formula's frames]` in order of fraction, and the refined pair's
+/// `[fraction, modelled error]` in the order they were refined (empty where the stage has no
+/// footprints or no rounds are asked for). Where none can be judged
 /// (no point, no scale: every error infinite) the asked fraction stays; the first of equals
 /// is the smaller fraction.
 fn choose_clip(
@@ -688,7 +698,7 @@ fn choose_clip(
     asked: Draft,
     draft_at: &impl Fn(f64) -> Result<Draft, CompensateError>,
     finish: &impl Fn(Draft, u32) -> Candidate,
-) -> Result<(Candidate, Vec<[f64; 2]>), CompensateError> {
+) -> Result<ClipChoice, CompensateError> {
     let idx = work_points(stage, &prep.geometry, target);
     let sample: Vec<u32> = idx.iter().step_by(idx.len().div_ceil(AUTO_SAMPLES).max(1)).copied().collect();
     let footprints = footprint::Footprints::of(stage, prep);
@@ -730,9 +740,13 @@ fn choose_clip(
     let order = by_error(&judged);
     let refines = params.footprint_rounds > 0 && footprint::has_footprints(stage);
     let mut best: Option<(f64, Candidate)> = None;
+    let mut refined = Vec::new();
     for j in order.iter().take(if refines { 2 } else { 1 }) {
         let c = finish(draft_at(j[0])?, params.footprint_rounds);
         let error = if refines { error_of(&c, params.footprint_rounds) } else { j[1] };
+        if refines {
+            refined.push([j[0], error]);
+        }
         let better =
             best.as_ref().is_none_or(|b| error < b.0 || (error == b.0 && j[0] < b.1.draft.clip_fraction));
         if better {
@@ -745,7 +759,15 @@ fn choose_clip(
         "clip fraction chosen by the modelled view (at least {:.2} %)",
         100.0 * grid[0]
     );
-    Ok((chosen, judged))
+    Ok(ClipChoice { chosen, judged, refined })
+}
+
+/// What [`choose_clip`] took, and what it judged on the way ([`Stats::clip_judged`],
+/// [`Stats::clip_refined`]).
+struct ClipChoice {
+    chosen: Candidate,
+    judged: Vec<[f64; 2]>,
+    refined: Vec<[f64; 2]>,
 }
 
 /// One clip fraction's compensation up to the guarantee: its draft (frames refined, unseen
@@ -872,10 +894,19 @@ pub const CLIP_JUDGED_CAPTION: &str = "clip fraction chosen by the modelled view
      each fraction's formula frames; where footprints were measured, the best two judged again \
      after the footprint rounds)";
 
-/// The candidates the model judged ([`Stats::clip_judged`]) as one line for logs and reports,
-/// e.g. `1.00 %: ΔE 3.41, 2.00 %: ΔE 2.97`; empty where it judged none.
-pub fn clip_judged_text(judged: &[[f64; 2]]) -> String {
-    judged.iter().map(|c| format!("{:.2} %: ΔE {:.2}", 100.0 * c[0], c[1])).collect::<Vec<_>>().join(", ")
+/// The candidates the model judged ([`Stats::clip_judged`]) and the pair it refined
+/// ([`Stats::clip_refined`]) as one line for logs and reports, e.g. `1.00 %: ΔE 3.41, 2.00 %:
+/// ΔE 2.97; after the footprint rounds 2.00 %: ΔE 2.60, 1.00 %: ΔE 2.71`; empty where it
+/// judged none.
+pub fn clip_judged_text(judged: &[[f64; 2]], refined: &[[f64; 2]]) -> String {
+    let list = |l: &[[f64; 2]]| {
+        l.iter().map(|c| format!("{:.2} %: ΔE {:.2}", 100.0 * c[0], c[1])).collect::<Vec<_>>().join(", ")
+    };
+    if refined.is_empty() {
+        list(judged)
+    } else {
+        format!("{}; after the footprint rounds {}", list(judged), list(refined))
+    }
 }
 
 /// The grid of clip fractions [`AutoClip`] judges (those below the asked one left out; then

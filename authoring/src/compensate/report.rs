@@ -219,7 +219,11 @@ pub fn save(
         judged = if s.clip_judged.is_empty() {
             String::new()
         } else {
-            format!("<br>{}: {}", super::CLIP_JUDGED_CAPTION, super::clip_judged_text(&s.clip_judged))
+            format!(
+                "<br>{}: {}",
+                super::CLIP_JUDGED_CAPTION,
+                super::clip_judged_text(&s.clip_judged, &s.clip_refined)
+            )
         },
         cov = s.covered_points,
         bb = s.limited_by_bound,

@@ -492,6 +492,20 @@ fn compensation_reports_the_scale_at_every_listed_clip_fraction() {
     let mut order = c.stats.clip_judged.clone();
     order.sort_by(|a, b| a[1].total_cmp(&b[1]));
     assert!(order[..2].iter().any(|j| j[0] == c.stats.clip_fraction), "{order:?}");
+    // The stage has footprints: those two were refined, in that order, and the one the
+    // refined frames judged better taken.
+    assert!(footprint::has_footprints(&s.model));
+    let pair: Vec<f64> = c.stats.clip_refined.iter().map(|j| j[0]).collect();
+    assert_eq!(pair, [order[0][0], order[1][0]], "{:?}", c.stats.clip_refined);
+    let better = c.stats.clip_refined.iter().min_by(|a, b| a[1].total_cmp(&b[1])).unwrap();
+    assert_eq!(c.stats.clip_fraction, better[0], "{:?}", c.stats.clip_refined);
+    // Without footprints nothing is refined, and the best by the formula is taken.
+    let mut bare = s.model.clone();
+    bare.transport.iter_mut().for_each(|t| *t = Default::default());
+    let b = compensate(&bare, &t, &auto).unwrap();
+    assert!(b.stats.clip_refined.is_empty(), "{:?}", b.stats.clip_refined);
+    let best = b.stats.clip_judged.iter().min_by(|x, y| x[1].total_cmp(&y[1])).unwrap();
+    assert_eq!(b.stats.clip_fraction, best[0], "{:?}", b.stats.clip_judged);
     // Its scale lies on the curve: between the listed fractions around it.
     let curve = &c.stats.scale_by_clip;
     let below = curve.iter().rfind(|e| e[0] <= c.stats.clip_fraction).unwrap();

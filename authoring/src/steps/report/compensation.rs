@@ -150,7 +150,7 @@ impl Page<'_> {
                 format!(
                     "<tr><th scope=\"row\">{}</th><td>{}</td></tr>",
                     esc(restage_authoring::compensate::CLIP_JUDGED_CAPTION),
-                    esc(&restage_authoring::compensate::clip_judged_text(&st.clip_judged))
+                    esc(&restage_authoring::compensate::clip_judged_text(&st.clip_judged, &st.clip_refined))
                 )
             },
             st.rounds,
