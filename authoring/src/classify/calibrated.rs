@@ -305,6 +305,9 @@ pub fn classify(
         let changed =
             super::regions::merge_soft_regions(photo, &mut labels, k, &reps_rgb, &idx, &typical, &opts.loss);
         info!(changed, "relabelled faded or stained regions");
+        let changed =
+            super::islands::relabel_faded_islands(photo, &mut labels, k, &reps_rgb, &idx, &opts.loss);
+        info!(changed, "relabelled evenly faded islands");
     }
     // Edges after regions: the edge pass takes each mixed pixel's paints from the classes
     // beside it, which must already be right (unmixing first also fixes rows of mixed pixels

@@ -24,7 +24,7 @@ use crate::imgio::LinearImage;
 const REACH: i64 = 2;
 
 /// How dark bare substrate may look in a crack, as a fraction of its colour in open chips.
-const CRACK_SHADE: [f64; 5] = [0.9, 0.8, 0.65, 0.5, 0.4];
+pub(super) const CRACK_SHADE: [f64; 5] = [0.9, 0.8, 0.65, 0.5, 0.4];
 
 /// How many times smaller the residual of a darkened-substrate explanation must be.
 const CRACK_EVIDENCE: f64 = 2.0;
@@ -178,7 +178,7 @@ fn mean(acc: &[f64; 4]) -> Option<[f64; 3]> {
 
 /// The share `a` in `[min_share, 1]` of `m` in `p ≈ a·m + (1-a)·o` (least squares in linear
 /// RGB) and the distance left.
-fn mix(p: [f64; 3], m: [f64; 3], o: [f64; 3], min_share: f64) -> (f64, f64) {
+pub(super) fn mix(p: [f64; 3], m: [f64; 3], o: [f64; 3], min_share: f64) -> (f64, f64) {
     let d = [0, 1, 2].map(|c| m[c] - o[c]);
     let dd = d.iter().map(|v| v * v).sum::<f64>();
     let a = if dd > 0.0 { (0..3).map(|c| (p[c] - o[c]) * d[c]).sum::<f64>() / dd } else { 1.0 };

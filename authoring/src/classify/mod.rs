@@ -8,6 +8,7 @@ pub mod baseline;
 pub mod calibrated;
 pub mod edges;
 mod error;
+pub mod islands;
 pub mod kmeans;
 mod palette;
 pub mod picks;
