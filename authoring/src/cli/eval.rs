@@ -41,7 +41,9 @@ pub enum EvalStep {
         /// Seed of the simulated scenes and of the derived picks.
         #[arg(long, default_value_t = 1)]
         seed: u64,
-        /// Write each case's photo, truth, preview and accuracies into OUT/<case>/.
+        /// Write each case's photo, truth, preview, wrong pixels (red) and accuracies into
+        /// OUT/<case>/; where another pick seed did worse, its preview and wrong pixels too
+        /// (`ours_worst_*.png`).
         #[arg(long)]
         out: Option<PathBuf>,
         /// `seeded`: the projectors' placement and lenses, the camera's focal length and the

@@ -60,6 +60,9 @@ pub struct PhotoEval {
     pub baselines: Vec<MethodScore>,
     /// Our labels, in truth class indices (255 off the object).
     pub ours_labels: LabelMap,
+    /// Where another pick seed's picks did worse than the seed's own: that seed and our
+    /// labels with its picks (truth class indices), the case the worst figure comes from.
+    pub worst_labels: Option<(u64, LabelMap)>,
     /// The truth relabelled densely over the classes present.
     pub dense_truth: LabelMap,
 }
@@ -190,14 +193,27 @@ pub fn evaluate_photo(
         edges.iter().filter(|&&i| pred[i] == dense.data[i]).count() as f64 / edges.len().max(1) as f64
     };
     let edge_accuracy = [on_edges(&ours.labels.data), on_edges(&pp.labels.data)];
+    // Dense labels back in the truth's class indices.
+    let in_truth = |labels: &[u8]| {
+        LabelMap::from_vec(
+            truth.width,
+            truth.height,
+            labels.iter().map(|&l| if l == MASKED { MASKED } else { present[l as usize] as u8 }).collect(),
+        )
+    };
     let mut ours_by_pick_seed = vec![(seed, ours_score.accuracy)];
     let mut ours_by_pick_seed_no_soft = Vec::new();
+    let mut worst_labels = None;
     let no_soft = ClassifyOptions { merge_soft: false, ..opts.clone() };
     for s in seed..seed + PICK_SEEDS {
         let p = picks_from_labels(&dense, &pnames, &pdisplay, PICKS_PER_CLASS, s)?;
         if s > seed {
             let o = classify(photo, &p, Some(&mask), &opts)?;
-            ours_by_pick_seed.push((s, score("", &dense, &o.labels.data, k, 0.0).accuracy));
+            let accuracy = score("", &dense, &o.labels.data, k, 0.0).accuracy;
+            if ours_by_pick_seed.iter().all(|&(_, a)| accuracy < a) {
+                worst_labels = Some((s, in_truth(&o.labels.data)?));
+            }
+            ours_by_pick_seed.push((s, accuracy));
         }
         let o = classify(photo, &p, Some(&mask), &no_soft)?;
         ours_by_pick_seed_no_soft.push((s, score("", &dense, &o.labels.data, k, 0.0).accuracy));
@@ -213,15 +229,7 @@ pub fn evaluate_photo(
             labels.data.iter().map(|&l| if l == MASKED { MASKED } else { perm[l as usize] as u8 }).collect();
         baselines.push(score(space.name(), &dense, &mapped, k, secs));
     }
-    let ours_labels = LabelMap::from_vec(
-        truth.width,
-        truth.height,
-        ours.labels
-            .data
-            .iter()
-            .map(|&l| if l == MASKED { MASKED } else { present[l as usize] as u8 })
-            .collect(),
-    )?;
+    let ours_labels = in_truth(&ours.labels.data)?;
     Ok(PhotoEval {
         label: label.into(),
         classes: pnames,
@@ -235,6 +243,7 @@ pub fn evaluate_photo(
         ours_by_pick_seed_no_soft,
         baselines,
         ours_labels,
+        worst_labels,
         dense_truth: dense,
     })
 }
@@ -426,6 +435,9 @@ pub fn capture_case(capture_dir: &Path) -> Result<EvalCase, ClassifyError> {
 #[derive(Clone, Debug, Serialize)]
 struct PeerJson {
     ours: f64,
+    /// The pick seed of `ours_worst_*.png`, where another seed's picks did worse.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    worst_pick_seed: Option<u64>,
     #[serde(rename = "k-means++ RGB")]
     rgb: f64,
     #[serde(rename = "k-means++ Lab")]
@@ -438,17 +450,37 @@ struct PeerJson {
 
 /// Writes what people and the peer script look at: `photo.png` (16-bit linear, as given),
 /// `truth.png` (dense class indices over the classes present, 255 off the object),
-/// `ours_preview.png` (false colour) and `metrics.json`.
+/// `ours_preview.png` (false colour), `ours_wrong.png` (the object grey, our wrong pixels
+/// red) and `metrics.json`; where another pick seed did worse, its `ours_worst_preview.png`
+/// and `ours_worst_wrong.png` too, and that seed in `metrics.json`.
 pub fn save_case(dir: &Path, case: &EvalCase, e: &PhotoEval) -> Result<(), ClassifyError> {
     std::fs::create_dir_all(dir).map_err(|source| ClassifyError::Write { path: dir.into(), source })?;
     case.photo.save_linear16(&dir.join("photo.png"))?;
     e.dense_truth.save(&dir.join("truth.png"))?;
-    let mut preview = image::RgbImage::new(case.truth.width, case.truth.height);
-    for (p, &l) in preview.pixels_mut().zip(&e.ours_labels.data) {
-        p.0 = case.display.get(l as usize).copied().flatten().unwrap_or([0, 0, 0]);
+    let pictures = |labels: &LabelMap, name: &str| -> Result<(), ClassifyError> {
+        let (w, h) = (case.truth.width, case.truth.height);
+        let mut preview = image::RgbImage::new(w, h);
+        let mut wrong = image::RgbImage::new(w, h);
+        for (((p, q), &l), &t) in
+            preview.pixels_mut().zip(wrong.pixels_mut()).zip(&labels.data).zip(&case.truth.data)
+        {
+            p.0 = case.display.get(l as usize).copied().flatten().unwrap_or([0, 0, 0]);
+            q.0 = match (t == MASKED, l == t) {
+                (true, _) => [0, 0, 0],
+                (false, true) => [64, 64, 64],
+                (false, false) => [255, 0, 0],
+            };
+        }
+        for (img, what) in [(preview, "preview"), (wrong, "wrong")] {
+            let path = dir.join(format!("{name}_{what}.png"));
+            img.save(&path).map_err(|source| crate::imgio::ImageError::Write { path, source })?;
+        }
+        Ok(())
+    };
+    pictures(&e.ours_labels, "ours")?;
+    if let Some((_, worst)) = &e.worst_labels {
+        pictures(worst, "ours_worst")?;
     }
-    let path = dir.join("ours_preview.png");
-    preview.save(&path).map_err(|source| crate::imgio::ImageError::Write { path, source })?;
     let pct = |m: &MethodScore| m.per_class.iter().map(|v| v * 100.0).collect::<Vec<_>>();
     let mut recall = std::collections::BTreeMap::new();
     recall.insert("ours".to_string(), pct(&e.ours));
@@ -457,6 +489,7 @@ pub fn save_case(dir: &Path, case: &EvalCase, e: &PhotoEval) -> Result<(), Class
     }
     let j = PeerJson {
         ours: e.ours.accuracy,
+        worst_pick_seed: e.worst_labels.as_ref().map(|w| w.0),
         rgb: e.baselines[0].accuracy,
         lab: e.baselines[1].accuracy,
         classes: e.classes.clone(),
@@ -488,6 +521,27 @@ mod tests {
         save_case(dir.path(), &case, &e).unwrap();
         let truth = LabelMap::load(&dir.path().join("truth.png")).unwrap();
         assert_eq!(truth, e.dense_truth);
+        // The wrong pixels' picture marks as many as the accuracy leaves, and the worst pick
+        // seed's pictures are there where one did worse.
+        let red = |name: &str| {
+            let img = image::open(dir.path().join(name)).unwrap().to_rgb8();
+            img.pixels().filter(|p| p.0 == [255, 0, 0]).count()
+        };
+        let wrong = ((1.0 - e.ours.accuracy) * e.object_pixels as f64).round() as usize;
+        assert_eq!(red("ours_wrong.png"), wrong);
+        let worst = e.ours_by_pick_seed.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
+        match &e.worst_labels {
+            Some((s, _)) => {
+                assert!(worst < e.ours.accuracy);
+                assert_eq!(e.ours_by_pick_seed.iter().find(|p| p.0 == *s).unwrap().1, worst);
+                let wrong = ((1.0 - worst) * e.object_pixels as f64).round() as usize;
+                assert_eq!(red("ours_worst_wrong.png"), wrong);
+            }
+            None => {
+                assert_eq!(worst, e.ours.accuracy);
+                assert!(!dir.path().join("ours_worst_wrong.png").exists());
+            }
+        }
     }
 
     #[test]
