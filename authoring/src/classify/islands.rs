@@ -2,10 +2,11 @@
 //! sits on keeps its sharp edge, so the soft-border pass (`regions`) cannot see it, and its
 //! colour, part of the way from its paint to the ground, can lie nearer a third class (a red
 //! dot faded towards the slip reads as bare clay; a black one as the grey-blue). Fading is a
-//! mix in linear light of the paint and the ground, so a region enclosed by one class is
-//! explained, at the light of the ground around it, as each paint mixed with that ground: the
-//! region takes the paint that explains it at least [`EVIDENCE`] times better than its own
-//! class does under the same mix. A real chip (bare clay on the slip) is explained by its own
+//! mix in linear light of the paint and the ground, so a region that holds no pick of its
+//! own class, touches nothing off the object, and is surrounded beyond its rim (which may be
+//! mixed) by one class, the ground, is explained at the ground's local light as each paint
+//! mixed with that ground: the region takes the paint that explains it at least [`EVIDENCE`]
+//! times better than its own class does under the same mix. A real chip (bare clay on the slip) is explained by its own
 //! class and keeps it: the clay does not lie on the line from any paint to the slip, and
 //! where a loss class is named its island may also be the substrate in its cavity's shadow
 //! (darkened as the edge pass darkens it in cracks), which no fading explains.
@@ -35,8 +36,8 @@ const MIN_RING: usize = 4;
 /// Relabels faded islands (module notes) in place; returns how many pixels changed class.
 /// `colours`: each class's colour (linear RGB, the picks' mean); `picks[c]`: the pixels picked
 /// for class `c` (an island holding a pick of its own class is the conservator's word and
-/// stays); `loss`: the loss classes, which do not fade (never taken, and an island is not
-/// explained as one).
+/// stays); `loss`: the loss classes, which do not fade (never taken; an island of one may be
+/// its substrate in shadow).
 pub fn relabel_faded_islands(
     photo: &LinearImage,
     labels: &mut [u8],
