@@ -12,7 +12,7 @@
 //! (darkened as the edge pass darkens it in cracks), which no fading explains.
 
 use super::edges::{CRACK_SHADE, mix};
-use super::regions::regions;
+use super::regions::regions_only;
 use crate::imgio::LinearImage;
 
 /// How many times smaller the residual of another paint's mix with the ground must be than
@@ -47,14 +47,15 @@ pub fn relabel_faded_islands(
     loss: &[u8],
 ) -> usize {
     let (w, h) = (photo.width as usize, photo.height as usize);
-    let r = regions(photo, labels, k, colours, picks);
-    let count = r.regions.len();
+    // Only the regions: their borders' steps are the regions pass's business.
+    let (of_pixel, regions) = regions_only(labels, k, w, h, picks);
+    let count = regions.len();
     // Per region: whether it touches the image's edge or what is not object, and its
     // bounding box.
     let mut open = vec![false; count];
     let mut bbox = vec![[usize::MAX, usize::MAX, 0, 0]; count];
     for i in 0..w * h {
-        let g = r.of_pixel[i];
+        let g = of_pixel[i];
         if g == u32::MAX {
             continue;
         }
@@ -67,12 +68,12 @@ pub fn relabel_faded_islands(
             (y > 0).then(|| i - w),
             (y + 1 < h).then(|| i + w),
         ];
-        if n4.iter().any(|j| j.is_none_or(|j| r.of_pixel[j] == u32::MAX)) {
+        if n4.iter().any(|j| j.is_none_or(|j| of_pixel[j] == u32::MAX)) {
             open[g as usize] = true;
         }
     }
-    let mut relabel: Vec<(u32, u8)> = Vec::new();
-    for (g, region) in r.regions.iter().enumerate() {
+    let mut relabel: Vec<Option<u8>> = vec![None; count];
+    for (g, region) in regions.iter().enumerate() {
         if open[g] || region.anchored {
             continue;
         }
@@ -85,7 +86,7 @@ pub fn relabel_faded_islands(
         let mut dist = vec![u8::MAX; bw * bh];
         for y in by0..=by1 {
             for x in bx0..=bx1 {
-                if r.of_pixel[y * w + x] == g as u32 {
+                if of_pixel[y * w + x] == g as u32 {
                     dist[(y - by0) * bw + (x - bx0)] = 0;
                 }
             }
@@ -125,7 +126,7 @@ pub fn relabel_faded_islands(
                         && x + 1 < w
                         && y > 0
                         && y + 1 < h
-                        && [i - 1, i + 1, i - w, i + w].iter().all(|&j| r.of_pixel[j] == g as u32);
+                        && [i - 1, i + 1, i - w, i + w].iter().all(|&j| of_pixel[j] == g as u32);
                     if inside {
                         add(&mut inner);
                     }
@@ -170,13 +171,12 @@ pub fn relabel_faded_islands(
         if let Some((c, res)) = best
             && res * EVIDENCE < mine
         {
-            relabel.push((g as u32, c as u8));
+            relabel[g] = Some(c as u8);
         }
     }
     let mut changed = 0;
-    let to: std::collections::HashMap<u32, u8> = relabel.into_iter().collect();
-    for (l, g) in labels.iter_mut().zip(&r.of_pixel) {
-        if let Some(&c) = to.get(g) {
+    for (l, &g) in labels.iter_mut().zip(&of_pixel) {
+        if let Some(c) = relabel.get(g as usize).copied().flatten() {
             *l = c;
             changed += 1;
         }

@@ -155,6 +155,32 @@ pub fn components(labels: &[u8], active: &[bool], w: usize, h: usize, background
     (comp, n as usize)
 }
 
+/// The regions of `labels` (classes `0..k`; anything else is off the object) without their
+/// borders: the region of every pixel (`u32::MAX` off the object) and each region's class,
+/// size and whether it holds a pick of its class (`picks[c]`: the pixels picked for `c`).
+pub fn regions_only(
+    labels: &[u8],
+    k: usize,
+    w: usize,
+    h: usize,
+    picks: &[Vec<usize>],
+) -> (Vec<u32>, Vec<Region>) {
+    let n = labels.len();
+    let active: Vec<bool> = labels.iter().map(|&l| (l as usize) < k).collect();
+    let (of_pixel, count) = components(labels, &active, w, h, u8::MAX);
+    let mut regions = vec![Region { class: 0, pixels: 0, anchored: false }; count];
+    for (i, &g) in of_pixel.iter().enumerate().filter(|&(_, &g)| g != u32::MAX) {
+        regions[g as usize].class = labels[i];
+        regions[g as usize].pixels += 1;
+    }
+    for (c, pix) in picks.iter().enumerate() {
+        for &i in pix.iter().filter(|&&i| i < n && labels[i] as usize == c) {
+            regions[of_pixel[i] as usize].anchored = true;
+        }
+    }
+    (of_pixel, regions)
+}
+
 /// Finds the regions of `labels` (classes `0..k`; anything else is off the object) and
 /// measures every border. `colours`: each class's colour (linear RGB) the contrast is
 /// measured between; `picks[c]`: the pixels picked for class `c`.
@@ -168,18 +194,7 @@ pub fn regions(
     let (w, h) = (photo.width as usize, photo.height as usize);
     let n = labels.len();
     let on = |i: usize| (labels[i] as usize) < k;
-    let active: Vec<bool> = (0..n).map(on).collect();
-    let (of_pixel, count) = components(labels, &active, w, h, u8::MAX);
-    let mut regions = vec![Region { class: 0, pixels: 0, anchored: false }; count];
-    for (i, &g) in of_pixel.iter().enumerate().filter(|&(_, &g)| g != u32::MAX) {
-        regions[g as usize].class = labels[i];
-        regions[g as usize].pixels += 1;
-    }
-    for (c, pix) in picks.iter().enumerate() {
-        for &i in pix.iter().filter(|&&i| i < n && labels[i] as usize == c) {
-            regions[of_pixel[i] as usize].anchored = true;
-        }
-    }
+    let (of_pixel, regions) = regions_only(labels, k, w, h, picks);
 
     // Per pair of regions: every pair's step, and the soft pairs.
     type Measured = (Vec<f32>, Vec<[u32; 2]>);
