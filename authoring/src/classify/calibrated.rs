@@ -308,6 +308,8 @@ pub fn classify(
         let changed =
             super::islands::relabel_faded_islands(photo, &mut labels, k, &reps_rgb, &idx, &opts.loss);
         info!(changed, "relabelled evenly faded islands");
+        let changed = super::within::relabel_faded_within(photo, &mut labels, k, &reps_rgb, &idx, &opts.loss);
+        info!(changed, "relabelled faded paint within its ground");
     }
     // Edges after regions: the edge pass takes each mixed pixel's paints from the classes
     // beside it, which must already be right (unmixing first also fixes rows of mixed pixels

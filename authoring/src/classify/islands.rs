@@ -50,60 +50,13 @@ pub fn relabel_faded_islands(
     // Only the regions: their borders' steps are the regions pass's business.
     let (of_pixel, regions) = regions_only(labels, k, w, h, picks);
     let count = regions.len();
-    // Per region: whether it touches the image's edge or what is not object, and its
-    // bounding box.
-    let mut open = vec![false; count];
-    let mut bbox = vec![[usize::MAX, usize::MAX, 0, 0]; count];
-    for i in 0..w * h {
-        let g = of_pixel[i];
-        if g == u32::MAX {
-            continue;
-        }
-        let (x, y) = (i % w, i / w);
-        let b = &mut bbox[g as usize];
-        *b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
-        let n4 = [
-            (x > 0).then(|| i - 1),
-            (x + 1 < w).then(|| i + 1),
-            (y > 0).then(|| i - w),
-            (y + 1 < h).then(|| i + w),
-        ];
-        if n4.iter().any(|j| j.is_none_or(|j| of_pixel[j] == u32::MAX)) {
-            open[g as usize] = true;
-        }
-    }
+    let (open, bbox) = extents(&of_pixel, count, w, h, |j| of_pixel[j] == u32::MAX);
     let mut relabel: Vec<Option<u8>> = vec![None; count];
     for (g, region) in regions.iter().enumerate() {
         if open[g] || region.anchored {
             continue;
         }
-        let [x0, y0, x1, y1] = bbox[g];
-        // Chebyshev distance to the island within its box grown by the ring's reach.
-        let reach = RING[1];
-        let (bx0, by0) = (x0.saturating_sub(reach), y0.saturating_sub(reach));
-        let (bx1, by1) = ((x1 + reach).min(w - 1), (y1 + reach).min(h - 1));
-        let (bw, bh) = (bx1 - bx0 + 1, by1 - by0 + 1);
-        let mut dist = vec![u8::MAX; bw * bh];
-        for y in by0..=by1 {
-            for x in bx0..=bx1 {
-                if of_pixel[y * w + x] == g as u32 {
-                    dist[(y - by0) * bw + (x - bx0)] = 0;
-                }
-            }
-        }
-        for d in 1..=reach as u8 {
-            let prev = dist.clone();
-            for y in 0..bh {
-                for x in 0..bw {
-                    let near = (y.saturating_sub(1)..=(y + 1).min(bh - 1)).any(|v| {
-                        (x.saturating_sub(1)..=(x + 1).min(bw - 1)).any(|u| prev[v * bw + u] == d - 1)
-                    });
-                    if dist[y * bw + x] == u8::MAX && near {
-                        dist[y * bw + x] = d;
-                    }
-                }
-            }
-        }
+        let Around { bx0, by0, bx1, by1, bw, dist } = around(&of_pixel, g as u32, bbox[g], RING[1], w, h);
         // The island's own colour (its pixels that do not touch another region, or all of
         // them where none is inside); the ring's classes and colours beyond the rim, which
         // may be mixed.
@@ -182,6 +135,81 @@ pub fn relabel_faded_islands(
         }
     }
     changed
+}
+
+/// Per component of `of_pixel` (`count` of them, `u32::MAX` for none): whether it touches the
+/// image's edge or a pixel `off` names (what is not object), and its bounding box
+/// `[x0, y0, x1, y1]`.
+pub(super) fn extents(
+    of_pixel: &[u32],
+    count: usize,
+    w: usize,
+    h: usize,
+    off: impl Fn(usize) -> bool,
+) -> (Vec<bool>, Vec<[usize; 4]>) {
+    let mut open = vec![false; count];
+    let mut bbox = vec![[usize::MAX, usize::MAX, 0, 0]; count];
+    for (i, &g) in of_pixel.iter().enumerate().filter(|&(_, &g)| g != u32::MAX) {
+        let (x, y) = (i % w, i / w);
+        let b = &mut bbox[g as usize];
+        *b = [b[0].min(x), b[1].min(y), b[2].max(x), b[3].max(y)];
+        let n4 = [
+            (x > 0).then(|| i - 1),
+            (x + 1 < w).then(|| i + 1),
+            (y > 0).then(|| i - w),
+            (y + 1 < h).then(|| i + w),
+        ];
+        if n4.iter().any(|j| j.is_none_or(&off)) {
+            open[g as usize] = true;
+        }
+    }
+    (open, bbox)
+}
+
+/// Chebyshev distance (up to `reach`) from component `g` of `of_pixel` within its bounding box
+/// `[x0, y0, x1, y1]` grown by `reach`: the rings around a shape that this pass and the
+/// `within` pass read the ground from.
+pub(super) struct Around {
+    pub bx0: usize,
+    pub by0: usize,
+    pub bx1: usize,
+    pub by1: usize,
+    pub bw: usize,
+    /// Row-major over the grown box; `u8::MAX` beyond `reach`.
+    pub dist: Vec<u8>,
+}
+
+pub(super) fn around(of_pixel: &[u32], g: u32, bbox: [usize; 4], reach: usize, w: usize, h: usize) -> Around {
+    let [x0, y0, x1, y1] = bbox;
+    let (bx0, by0) = (x0.saturating_sub(reach), y0.saturating_sub(reach));
+    let (bx1, by1) = ((x1 + reach).min(w - 1), (y1 + reach).min(h - 1));
+    let (bw, bh) = (bx1 - bx0 + 1, by1 - by0 + 1);
+    // Breadth first over 8-neighbours: each pixel once, at its chessboard distance.
+    let mut dist = vec![u8::MAX; bw * bh];
+    let mut queue = std::collections::VecDeque::new();
+    for y in by0..=by1 {
+        for x in bx0..=bx1 {
+            if of_pixel[y * w + x] == g {
+                dist[(y - by0) * bw + (x - bx0)] = 0;
+                queue.push_back((x - bx0, y - by0));
+            }
+        }
+    }
+    while let Some((x, y)) = queue.pop_front() {
+        let d = dist[y * bw + x];
+        if d as usize >= reach {
+            continue;
+        }
+        for v in y.saturating_sub(1)..=(y + 1).min(bh - 1) {
+            for u in x.saturating_sub(1)..=(x + 1).min(bw - 1) {
+                if dist[v * bw + u] == u8::MAX {
+                    dist[v * bw + u] = d + 1;
+                    queue.push_back((u, v));
+                }
+            }
+        }
+    }
+    Around { bx0, by0, bx1, by1, bw, dist }
 }
 
 #[cfg(test)]

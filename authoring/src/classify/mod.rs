@@ -15,6 +15,7 @@ pub mod picks;
 pub mod regions;
 pub mod synthetic;
 pub mod weights;
+pub mod within;
 
 pub use calibrated::{Classification, ClassifyOptions, DEFAULT_PRIOR_PICKS, classify};
 pub use error::ClassifyError;

@@ -110,7 +110,7 @@ pub struct Regions {
 
 /// Relative difference of two linear RGB colours: the L1 distance over the L1 sum, so that
 /// shading (a common factor) cancels.
-fn relative(a: [f64; 3], b: [f64; 3]) -> f64 {
+pub(super) fn relative(a: [f64; 3], b: [f64; 3]) -> f64 {
     let d: f64 = (0..3).map(|j| (a[j] - b[j]).abs()).sum();
     let s: f64 = (0..3).map(|j| a[j].abs() + b[j].abs()).sum();
     if s > 0.0 { d / s } else { 0.0 }
