@@ -4,7 +4,8 @@
 //! dot faded towards the slip reads as bare clay; a black one as the grey-blue). Fading is a
 //! mix in linear light of the paint and the ground, so a region that holds no pick of its
 //! own class, touches nothing off the object, and is surrounded beyond its rim (which may be
-//! mixed) by one class, the ground, is explained at the ground's local light as each paint
+//! mixed) by one class, the ground (losses aside: a chip beside it hides what was there), is
+//! explained at the ground's local light as each paint
 //! mixed with that ground: the region takes the paint that explains it at least [`EVIDENCE`]
 //! times better than its own class does under the same mix. A real chip (bare clay on the slip) is explained by its own
 //! class and keeps it: the clay does not lie on the line from any paint to the slip, and
@@ -88,9 +89,13 @@ pub fn relabel_faded_islands(
                 }
             }
         }
-        // The ground: the class of nearly all of the ring.
-        let total: f64 = ring.iter().map(|a| a[3]).sum();
-        let Some(ground) = (0..k).max_by(|&a, &b| ring[a][3].total_cmp(&ring[b][3])) else { continue };
+        // The ground: the class of nearly all of the ring, losses aside (a chip beside the
+        // island hides what was there).
+        let kept = |c: &usize| !loss.contains(&(*c as u8));
+        let total: f64 = (0..k).filter(kept).map(|c| ring[c][3]).sum();
+        let Some(ground) = (0..k).filter(kept).max_by(|&a, &b| ring[a][3].total_cmp(&ring[b][3])) else {
+            continue;
+        };
         if ground == region.class as usize
             || ring[ground][3] < MIN_RING as f64
             || ring[ground][3] < GROUND_SHARE * total
@@ -294,6 +299,34 @@ mod tests {
         let picks = vec![vec![20 * W + 15], vec![20 * W + 65], vec![2 * W + 2]];
         relabel_faded_islands(&photo, &mut labels, 3, &[RED, CLAY, SLIP], &picks, &[1]);
         assert_eq!(labels[20 * W + 40], 0);
+    }
+
+    #[test]
+    fn chips_beside_the_island_do_not_hide_its_ground() {
+        // A band of black faded towards the slip, read as red, with a clay chip biting into
+        // each end (together a third of the ring around it): a loss hides what was there, so
+        // the rest of the ring, all slip, is the ground, and the band takes the black.
+        const BLACK: [f64; 3] = [0.04, 0.04, 0.04];
+        let mut photo = LinearImage::new(W as u32, H as u32).unwrap();
+        let mut labels = vec![3u8; W * H];
+        for (i, (px, l)) in photo.data.iter_mut().zip(labels.iter_mut()).enumerate() {
+            let (x, y) = ((i % W) as f64, (i / W) as f64);
+            let (colour, label) = if (x - 20.0).hypot(y - 20.0) < 6.0 || (x - 60.0).hypot(y - 20.0) < 6.0 {
+                (CLAY, 2)
+            } else if (20.0..60.0).contains(&x) && (17.0..23.0).contains(&y) {
+                ([0, 1, 2].map(|j| BLACK[j] + 0.45 * (SLIP[j] - BLACK[j])), 1)
+            } else {
+                (SLIP, 3)
+            };
+            let t = 1.0 - 0.5 * x / W as f64;
+            *px = colour.map(|c| (c * t) as f32);
+            *l = label;
+        }
+        let picks = vec![vec![2 * W + 2], vec![2 * W + 70], vec![20 * W + 20], vec![38 * W + 2]];
+        let colours = [BLACK, RED, CLAY, SLIP];
+        relabel_faded_islands(&photo, &mut labels, 4, &colours, &picks, &[2]);
+        assert_eq!(labels[20 * W + 40], 0, "the faded band is black paint");
+        assert_eq!(labels[20 * W + 60], 2, "the chip is clay");
     }
 
     #[test]
