@@ -114,26 +114,46 @@ pub fn relabel_faded_islands(
         let residual = |c: usize| mix(own, at_light(c), at_light(ground), MIN_SHARE).1;
         // A loss (bare substrate in a chip) may lie in its cavity's shadow, as in a crack.
         let mine = if loss.contains(&region.class) {
-            let bare = at_light(region.class as usize);
-            std::iter::once(1.0)
-                .chain(CRACK_SHADE)
-                .map(|s| mix(own, bare.map(|v| v * s), at_light(ground), MIN_SHARE).1)
-                .fold(f64::INFINITY, f64::min)
+            substrate_residual(own, at_light(region.class as usize), at_light(ground))
         } else {
             residual(region.class as usize)
         };
-        let best = (0..k)
-            .filter(|&c| c != ground && c != region.class as usize && !loss.contains(&(c as u8)))
-            .map(|c| (c, residual(c)))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((c, res)) = best
-            && res * EVIDENCE < mine
-        {
-            relabel[g] = Some(c as u8);
-        }
+        relabel[g] = better_paint(k, loss, &[ground, region.class as usize], residual, mine);
     }
+    apply(labels, &of_pixel, &relabel)
+}
+
+/// How well a loss's bare substrate, in its cavity's shadow or not (as the edge pass darkens it
+/// in cracks), mixed with `ground` explains `own` (the distance left).
+pub(super) fn substrate_residual(own: [f64; 3], bare: [f64; 3], ground: [f64; 3]) -> f64 {
+    std::iter::once(1.0)
+        .chain(CRACK_SHADE)
+        .map(|s| mix(own, bare.map(|v| v * s), ground, MIN_SHARE).1)
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The paint (not a loss, not in `not`) whose `residual` is least, where it is at least
+/// [`EVIDENCE`] times smaller than `mine`, the shape's own explanation.
+pub(super) fn better_paint(
+    k: usize,
+    loss: &[u8],
+    not: &[usize],
+    residual: impl Fn(usize) -> f64,
+    mine: f64,
+) -> Option<u8> {
+    (0..k)
+        .filter(|c| !not.contains(c) && !loss.contains(&(*c as u8)))
+        .map(|c| (c, residual(c)))
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .filter(|&(_, res)| res * EVIDENCE < mine)
+        .map(|(c, _)| c as u8)
+}
+
+/// Gives every pixel of a component (`of_pixel`) the class `relabel` names for it, if any;
+/// returns how many pixels changed.
+pub(super) fn apply(labels: &mut [u8], of_pixel: &[u32], relabel: &[Option<u8>]) -> usize {
     let mut changed = 0;
-    for (l, &g) in labels.iter_mut().zip(&of_pixel) {
+    for (l, &g) in labels.iter_mut().zip(of_pixel) {
         if let Some(c) = relabel.get(g as usize).copied().flatten() {
             *l = c;
             changed += 1;

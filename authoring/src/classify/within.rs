@@ -9,14 +9,14 @@
 //!   5-7 px beyond, the ground's colour changes by at most [`FLAT`] of the patch's contrast
 //!   with it; a stain's colour runs on past where it stops standing out;
 //! - a paint mixed with that local ground (at least half paint, as the `islands` pass mixes)
-//!   explains its colour [`EVIDENCE`] times better than the ground alone does, or than a loss
+//!   explains its colour [`EVIDENCE`](super::islands::EVIDENCE) times better than the ground alone does, or than a loss
 //!   class's substrate in a cavity's shadow (a crack) mixed with it;
 //! - it touches nothing off the object and holds no pick of its class.
 //!
 //! Such a patch takes the paint; its mixed rim is left to the edge pass that follows.
 
-use super::edges::{CRACK_SHADE, mix};
-use super::islands::{Around, EVIDENCE, around, extents};
+use super::edges::mix;
+use super::islands::{Around, apply, around, better_paint, extents, substrate_residual};
 use super::regions::{components, relative};
 use crate::imgio::LinearImage;
 
@@ -45,8 +45,8 @@ const RING: [usize; 2] = [2, 3];
 /// runs on past the patch (a stain), and the patch is not paint.
 const BEYOND: [usize; 2] = [5, 7];
 
-/// Most share of the patch's contrast the ground may still change by between [`RING`] and
-/// [`BEYOND`].
+/// Most share of the patch's contrast the ground may still change by between 2-3 px and
+/// 5-7 px beyond the patch.
 pub const FLAT: f64 = 0.15;
 
 /// Each pixel's class's local colour (linear RGB; `None` off the object or where too few
@@ -204,32 +204,16 @@ pub fn relabel_faded_within(
             continue;
         }
         let at_light = |c: usize| colours[c].map(|v| v * light);
-        // The ground alone, or a chip or crack: a loss's substrate, in the cavity's shadow or
-        // not, mixed with the ground.
+        // The ground alone, or a chip or crack: a loss's substrate mixed with the ground.
         let mine = loss
             .iter()
             .filter(|&&c| (c as usize) < k)
-            .flat_map(|&c| std::iter::once(&1.0).chain(&CRACK_SHADE).map(move |&s| (c, s)))
-            .map(|(c, s)| mix(own, at_light(c as usize).map(|v| v * s), local, MIN_SHARE).1)
+            .map(|&c| substrate_residual(own, at_light(c as usize), local))
             .fold(contrast, f64::min);
-        let best = (0..k)
-            .filter(|&c| c != ground as usize && !loss.contains(&(c as u8)))
-            .map(|c| (c, mix(own, at_light(c), local, MIN_SHARE).1))
-            .min_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((c, res)) = best
-            && res * EVIDENCE < mine
-        {
-            relabel[g] = Some(c as u8);
-        }
+        let residual = |c: usize| mix(own, at_light(c), local, MIN_SHARE).1;
+        relabel[g] = better_paint(k, loss, &[ground as usize], residual, mine);
     }
-    let mut changed = 0;
-    for (l, &g) in labels.iter_mut().zip(&of_pixel) {
-        if let Some(c) = relabel.get(g as usize).copied().flatten() {
-            *l = c;
-            changed += 1;
-        }
-    }
-    changed
+    apply(labels, &of_pixel, &relabel)
 }
 
 #[cfg(test)]
