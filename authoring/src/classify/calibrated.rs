@@ -55,8 +55,10 @@ pub struct ClassifyOptions {
     /// paints beside them ([`super::edges`]); on by default. Off: the paper's per-pixel rule
     /// alone (`restage-author eval classify` reports both).
     pub unmix_edges: bool,
-    /// Give regions whose colour runs on without a step into a neighbouring paint that
-    /// paint's class (faded or stained patches, [`super::regions`]); on by default.
+    /// Give faded or stained paint its paint's class: regions whose colour runs on without a
+    /// step into a neighbouring paint ([`super::regions`]), shapes faded evenly towards the
+    /// ground around them ([`super::islands`]) and paint faded into its ground's class
+    /// ([`super::within`]); on by default.
     pub merge_soft: bool,
     /// The loss classes (bare substrate that chips and cracks expose, the restoration's
     /// `loss_classes`), by index into the picks. A crack is a groove one or two pixels wide:
