@@ -254,14 +254,17 @@ fn yields(a: &Region, b: &Region, loss: &[u8]) -> Option<usize> {
 }
 
 /// Splits regions that hold picks but also border softly on a paint they should yield to:
-/// the picks keep their class, the soft border's pixels take the other, and every pixel of
-/// the region goes to the seed it reaches by the path whose largest colour step is least
-/// (a watershed on the colour steps: the split falls on the sharpest line between the picked
-/// paint and the altered patch). `seeds`: (pixel, class); the picks are added here.
+/// the picks and the region's typical pixels keep their class, the soft border's pixels take
+/// the other, and every pixel of the region goes to the seed it reaches by the path whose
+/// largest colour step is least (a watershed on the colour steps: the split falls on the
+/// sharpest line between the picked paint and the altered patch). Typical pixels that only the
+/// soft border reaches by soft steps are no seeds (see the body). `seeds`: (pixel, class); the
+/// picks are added here.
 fn flood(
     photo: &LinearImage,
     r: &Regions,
     labels: &mut [u8],
+    colours: &[[f64; 3]],
     picks: &[Vec<usize>],
     typical: &[bool],
     seeds: Vec<(u32, u8)>,
@@ -270,31 +273,13 @@ fn flood(
     use std::collections::BinaryHeap;
     let (w, h) = (photo.width as usize, photo.height as usize);
     let split: std::collections::BTreeSet<u32> = seeds.iter().map(|&(i, _)| r.of_pixel[i as usize]).collect();
+    let soft: std::collections::HashSet<u32> = seeds.iter().map(|&(i, _)| i).collect();
     let mut heap: BinaryHeap<Reverse<(u32, u32, u8)>> =
         seeds.into_iter().map(|(i, c)| Reverse((0, i, c))).collect();
-    for (c, pix) in picks.iter().enumerate() {
-        for &i in pix.iter().filter(|&&i| i < labels.len() && labels[i] as usize == c) {
-            if split.contains(&r.of_pixel[i]) {
-                heap.push(Reverse((0, i as u32, c as u8)));
-            }
-        }
-    }
-    for i in (0..labels.len()).filter(|&i| typical[i] && r.of_pixel[i] != u32::MAX) {
-        if split.contains(&r.of_pixel[i]) {
-            heap.push(Reverse((0, i as u32, labels[i])));
-        }
-    }
-    let mut settled = vec![false; labels.len()];
     let px = |i: usize| photo.data[i].map(f64::from);
-    let mut out: Vec<(usize, u8)> = Vec::new();
-    while let Some(Reverse((cost, i, c))) = heap.pop() {
-        let i = i as usize;
-        if std::mem::replace(&mut settled[i], true) {
-            continue;
-        }
-        out.push((i, c));
+    let neighbours = |i: usize| {
         let (x, y) = (i % w, i / w);
-        for j in [
+        [
             (x > 0).then(|| i - 1),
             (x + 1 < w).then(|| i + 1),
             (y > 0).then(|| i - w),
@@ -302,8 +287,77 @@ fn flood(
         ]
         .into_iter()
         .flatten()
-        .filter(|&j| !settled[j] && r.of_pixel[j] == r.of_pixel[i])
-        {
+    };
+    // The colour step from i to its neighbour j, measured as borders are: from one pixel
+    // behind i to one beyond j where the region goes on, since a blurred edge spreads its
+    // step over two or three pixels.
+    let span_step = |i: usize, j: usize| {
+        let (x, y) = ((i % w) as i64, (i / w) as i64);
+        let (dx, dy) = ((j % w) as i64 - x, (j / w) as i64 - y);
+        let at = |x: i64, y: i64| {
+            (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h)
+                .then(|| y as usize * w + x as usize)
+                .filter(|&k| r.of_pixel[k] == r.of_pixel[i])
+        };
+        let behind = at(x - dx, y - dy).unwrap_or(i);
+        let beyond = at(x + 2 * dx, y + 2 * dy).unwrap_or(j);
+        relative(px(behind), px(beyond))
+    };
+    // Per split region, the least contrast between its class and a class it yields to: a step
+    // under SOFT_STEP of it is soft.
+    let mut soft_below: std::collections::BTreeMap<u32, f64> = Default::default();
+    for &Reverse((_, i, c)) in heap.iter() {
+        let i = i as usize;
+        let contrast = relative(colours[labels[i] as usize], colours[c as usize]);
+        let e = soft_below.entry(r.of_pixel[i]).or_insert(f64::INFINITY);
+        *e = e.min(SOFT_STEP as f64 * contrast);
+    }
+    // Pixels reached by soft steps from `from` within their region.
+    let reach = |from: &mut dyn Iterator<Item = usize>| {
+        let mut seen = vec![false; labels.len()];
+        let mut stack: Vec<usize> = from.filter(|&i| !std::mem::replace(&mut seen[i], true)).collect();
+        while let Some(i) = stack.pop() {
+            let below = soft_below.get(&r.of_pixel[i]).copied().unwrap_or(0.0);
+            for j in neighbours(i) {
+                if !seen[j] && r.of_pixel[j] == r.of_pixel[i] && span_step(i, j) < below {
+                    seen[j] = true;
+                    stack.push(j);
+                }
+            }
+        }
+        seen
+    };
+    let mut picked: Vec<usize> = Vec::new();
+    for (c, pix) in picks.iter().enumerate() {
+        for &i in pix.iter().filter(|&&i| i < labels.len() && labels[i] as usize == c) {
+            if split.contains(&r.of_pixel[i]) {
+                heap.push(Reverse((0, i as u32, c as u8)));
+                picked.push(i);
+            }
+        }
+    }
+    // A typical pixel holds its class unless it is another paint altered to look like this
+    // one: reached by soft steps from the soft border but not from the picks, that is beyond
+    // a sharp edge from the picked paint (red faded to a chip's clay colour beside the chip).
+    // A soft border's pixel itself continues the paint beyond it, however typical it looks.
+    let held = reach(&mut picked.into_iter());
+    let released = reach(&mut soft.iter().map(|&i| i as usize));
+    for i in
+        (0..labels.len()).filter(|&i| typical[i] && (held[i] || !released[i]) && !soft.contains(&(i as u32)))
+    {
+        if split.contains(&r.of_pixel[i]) {
+            heap.push(Reverse((0, i as u32, labels[i])));
+        }
+    }
+    let mut settled = vec![false; labels.len()];
+    let mut out: Vec<(usize, u8)> = Vec::new();
+    while let Some(Reverse((cost, i, c))) = heap.pop() {
+        let i = i as usize;
+        if std::mem::replace(&mut settled[i], true) {
+            continue;
+        }
+        out.push((i, c));
+        for j in neighbours(i).filter(|&j| !settled[j] && r.of_pixel[j] == r.of_pixel[i]) {
             // Steps are non-negative, so their bits order as the values do.
             let step = (relative(px(i), px(j)) as f32).to_bits();
             heap.push(Reverse((cost.max(step), j as u32, c)));
@@ -361,7 +415,7 @@ pub fn merge_soft_regions(
             }
         }
         if !seeds.is_empty() {
-            flood(photo, &r, labels, picks, typical, seeds);
+            flood(photo, &r, labels, colours, picks, typical, seeds);
         }
         if *labels == old[..] {
             break;
@@ -467,6 +521,33 @@ mod tests {
         );
         assert_eq!(labels[at(85, 22)], 0, "the faded core is red");
         assert_eq!(labels[at(15, 15)], 1, "the first chip too");
+    }
+
+    #[test]
+    fn faded_paint_that_looks_typical_of_a_chip_does_not_hold_beyond_the_chips_edge() {
+        // The faded core is typical of the clay (the per-pixel rule gave it the clay's class
+        // because the picks' spread covers it) and one region with a picked chip that opens
+        // into it. Its typical pixels lie beyond the chip's sharp edge, so they do not hold
+        // the clay: the core is red. The classes are in the other order here (clay first), so
+        // that the outcome does not rest on which class comes first.
+        let (mut photo, mut labels) = scene();
+        let in_chip = |i: usize| (((i % W) as f64) - 72.0).hypot((i / W) as f64 - 22.0) < 5.0;
+        for i in (0..labels.len()).filter(|&i| in_chip(i)) {
+            photo.data[i] = CLAY.map(|c| c as f32);
+            labels[i] = 1;
+        }
+        for l in labels.iter_mut().filter(|l| **l < 2) {
+            *l = 1 - *l;
+        }
+        let typical: Vec<bool> = labels.iter().map(|&l| l == 0).collect();
+        let picks = vec![vec![at(72, 22)], vec![at(35, 5)], vec![at(40, 55)]];
+        merge_soft_regions(&photo, &mut labels, 3, &[CLAY, RED, SLIP], &picks, &typical, &[0]);
+        assert!(
+            (0..labels.len()).filter(|&i| in_chip(i)).all(|i| labels[i] == 0),
+            "the chip keeps its class"
+        );
+        assert_eq!(labels[at(85, 22)], 1, "the faded core is red");
+        assert_eq!(labels[at(15, 15)], 0, "the first chip keeps its class");
     }
 
     #[test]
