@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_restage-author");
 
-/// A private X server for one test, killed on drop.
+/// A private X server for one test, stopped on drop.
 struct Xvfb {
     child: Child,
     display: String,
@@ -21,12 +21,17 @@ struct Xvfb {
 
 impl Drop for Xvfb {
     fn drop(&mut self) {
-        let _ = self.child.kill();
+        // SIGTERM, not SIGKILL: a killed Xvfb leaves its socket and lock file in /tmp, and a
+        // later run that takes the same number would find a socket no server listens on.
+        let pid = nix::unistd::Pid::from_raw(self.child.id() as i32);
+        if nix::sys::signal::kill(pid, nix::sys::signal::Signal::SIGTERM).is_err() {
+            let _ = self.child.kill();
+        }
         let _ = self.child.wait();
     }
 }
 
-fn xvfb(n: u32) -> Option<Xvfb> {
+fn xvfb() -> Option<Xvfb> {
     if Command::new("Xvfb").arg("-help").stderr(Stdio::null()).stdout(Stdio::null()).status().is_err() {
         if std::env::var_os("RESTAGE_NO_GUI_OK").is_some() {
             eprintln!("skipped: no Xvfb (RESTAGE_NO_GUI_OK is set)");
@@ -36,22 +41,27 @@ fn xvfb(n: u32) -> Option<Xvfb> {
             "Xvfb is missing: apt-get install xvfb mesa-vulkan-drivers (or set RESTAGE_NO_GUI_OK=1 to skip)"
         );
     }
-    // A display number of our own: tests run in parallel and CI may have others.
-    let n = 100 + (std::process::id() % 400) * 2 + n;
-    let display = format!(":{n}");
-    let child = Command::new("Xvfb")
-        .args([display.as_str(), "-screen", "0", "1280x800x24", "-nolisten", "tcp", "-noreset"])
-        .stdout(Stdio::null())
+    // `-displayfd`: the server takes a free display number itself (tests run in parallel and CI
+    // may have other servers) and writes it once it accepts connections, so there is no race
+    // between a socket appearing and the server listening on it.
+    let mut child = Command::new("Xvfb")
+        .args(["-displayfd", "1", "-screen", "0", "1280x800x24", "-nolisten", "tcp", "-noreset"])
+        .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
         .expect("starting Xvfb");
-    let socket = PathBuf::from(format!("/tmp/.X11-unix/X{n}"));
-    let t0 = Instant::now();
-    while !socket.exists() {
-        assert!(t0.elapsed() < Duration::from_secs(20), "Xvfb did not start on {display}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-    Some(Xvfb { child, display })
+    let mut line = String::new();
+    let stdout = child.stdout.take().expect("Xvfb's stdout");
+    let _ = std::io::BufRead::read_line(&mut std::io::BufReader::new(stdout), &mut line);
+    let n: u32 = match line.trim().parse() {
+        Ok(n) => n,
+        Err(_) => {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("Xvfb did not start (it wrote {line:?} for its display number)");
+        }
+    };
+    Some(Xvfb { child, display: format!(":{n}") })
 }
 
 fn gui(display: &str) -> Command {
@@ -84,7 +94,7 @@ fn compare(a: &image::RgbImage, b: &image::RgbImage) -> (f64, f64, image::RgbIma
 
 #[test]
 fn every_view_matches_its_golden_screenshot() {
-    let Some(x) = xvfb(0) else { return };
+    let Some(x) = xvfb() else { return };
     let tmp = tempfile::tempdir().unwrap();
     // The demo's whole chain (about two minutes on two cores); its output folder is a project
     // whose relighting and compensations the tool runs before the screenshots.
@@ -223,7 +233,7 @@ fn report_renders_in_chromium(project: &Path) {
 
 #[test]
 fn no_graphics_adapter_is_a_clear_message() {
-    let Some(x) = xvfb(1) else { return };
+    let Some(x) = xvfb() else { return };
     let tmp = tempfile::tempdir().unwrap();
     let photo = tmp.path().join("photo.png");
     image::RgbImage::from_fn(64, 48, |x, y| image::Rgb([x as u8 * 4, y as u8 * 5, 90])).save(&photo).unwrap();
