@@ -10,7 +10,12 @@
 //! of another class across their shared border: the colour step from one pixel inside to one
 //! pixel outside (skipping past the border pixels themselves, which may be mixed) relative to
 //! the contrast between the two classes' colours. Where the median step is a small share of
-//! the contrast the border is soft, and one region takes the other's class:
+//! the contrast the border is soft, and one region takes the other's class. Mixed pixels do
+//! not decide it: the per-pixel rule gives a row of them along a band's edge whatever class
+//! lies between the two colours mixed, and the row joins a faded patch of that class it
+//! touches. So the median is over the pairs with no pixel beside a third label (another
+//! class, or off the object) where there are enough of them, and the sizes compared below
+//! leave out pixels one pixel wide in their row or column ([`Region::thick`]):
 //! - a region holding a pick of its own class (the conservator named it) yields only in
 //!   part: a watershed on colour steps from its picks and its typical pixels on one side and
 //!   the soft border on the other splits it along its sharpest line (`flood`);
@@ -47,7 +52,8 @@ pub struct Border {
     pub regions: [u32; 2],
     /// Border pixel pairs measured.
     pub pairs: usize,
-    /// Median colour step across the border over the contrast between the two classes.
+    /// Median colour step across the border over the contrast between the two classes: of the
+    /// pairs with no pixel beside a third label where at least [`MIN_PAIRS`] are, else of all.
     pub step: f32,
     /// The pairs whose step is below [`SOFT_STEP`]: (pixel in `regions[0]`, pixel in `regions[1]`).
     pub soft: Vec<[u32; 2]>,
@@ -95,6 +101,10 @@ fn runs(soft: &[[u32; 2]], w: usize) -> Vec<[u32; 2]> {
 pub struct Region {
     pub class: u8,
     pub pixels: u32,
+    /// Its pixels outside lines one pixel wide ([`thin_pixels`]): the size a soft border
+    /// compares. A row of mixed pixels along an edge or the silhouette can take the class of a
+    /// patch it touches and double the patch's size.
+    pub thick: u32,
     /// Holds a pick of its own class.
     pub anchored: bool,
 }
@@ -114,6 +124,28 @@ pub(super) fn relative(a: [f64; 3], b: [f64; 3]) -> f64 {
     let d: f64 = (0..3).map(|j| (a[j] - b[j]).abs()).sum();
     let s: f64 = (0..3).map(|j| a[j].abs() + b[j].abs()).sum();
     if s > 0.0 { d / s } else { 0.0 }
+}
+
+/// The 4-neighbours of pixel `i` in a `w` x `h` image.
+fn neighbours(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
+    let (x, y) = (i % w, i / w);
+    [(x > 0).then(|| i - 1), (x + 1 < w).then(|| i + 1), (y > 0).then(|| i - w), (y + 1 < h).then(|| i + w)]
+        .into_iter()
+        .flatten()
+}
+
+/// Pixels one pixel wide in their row or in their column: both neighbours across them have
+/// another label or lie off the image. Mixed pixels along an edge or the silhouette, which the
+/// per-pixel rule gives whichever class lies between the two colours they mix, form such lines.
+fn thin_pixels(labels: &[u8], w: usize, h: usize) -> Vec<bool> {
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let other = |j: Option<usize>| j.is_none_or(|j| labels[j] != labels[i]);
+            (other((x > 0).then(|| i - 1)) && other((x + 1 < w).then(|| i + 1)))
+                || (other((y > 0).then(|| i - w)) && other((y + 1 < h).then(|| i + w)))
+        })
+        .collect()
 }
 
 /// Labels 4-connected components (the regions here, the restoration's patches) of equal class among `active` pixels that are not
@@ -168,10 +200,13 @@ pub fn regions_only(
     let n = labels.len();
     let active: Vec<bool> = labels.iter().map(|&l| (l as usize) < k).collect();
     let (of_pixel, count) = components(labels, &active, w, h, u8::MAX);
-    let mut regions = vec![Region { class: 0, pixels: 0, anchored: false }; count];
+    let thin = thin_pixels(labels, w, h);
+    let mut regions = vec![Region { class: 0, pixels: 0, thick: 0, anchored: false }; count];
     for (i, &g) in of_pixel.iter().enumerate().filter(|&(_, &g)| g != u32::MAX) {
-        regions[g as usize].class = labels[i];
-        regions[g as usize].pixels += 1;
+        let r = &mut regions[g as usize];
+        r.class = labels[i];
+        r.pixels += 1;
+        r.thick += u32::from(!thin[i]);
     }
     for (c, pix) in picks.iter().enumerate() {
         for &i in pix.iter().filter(|&&i| i < n && labels[i] as usize == c) {
@@ -196,8 +231,9 @@ pub fn regions(
     let on = |i: usize| (labels[i] as usize) < k;
     let (of_pixel, regions) = regions_only(labels, k, w, h, picks);
 
-    // Per pair of regions: every pair's step, and the soft pairs.
-    type Measured = (Vec<f32>, Vec<[u32; 2]>);
+    // Per pair of regions: every pair's step (and whether it is clear of a third label), and
+    // the soft pairs.
+    type Measured = (Vec<(f32, bool)>, Vec<[u32; 2]>);
     let mut steps: std::collections::BTreeMap<(u32, u32), Measured> = Default::default();
     let px = |i: usize| photo.data[i].map(f64::from);
     for i in (0..n).filter(|&i| on(i)) {
@@ -216,13 +252,19 @@ pub fn regions(
                 .filter(|&q| q < n && (d == w || (j + 1) % w != 0) && of_pixel[q] == of_pixel[j])
                 .unwrap_or(j);
             let step = (relative(px(inner), px(outer)) / contrast) as f32;
+            // A pixel beside a third label (another class, or off the object) may mix that
+            // colour in: a row of mixed pixels along a band's edge makes steps to the band
+            // that say nothing of how the two regions meet.
+            let third =
+                |p: usize| neighbours(p, w, h).any(|q| labels[q] != labels[i] && labels[q] != labels[j]);
+            let clear = !third(i) && !third(j);
             let (key, pixels) = if of_pixel[i] < of_pixel[j] {
                 ((of_pixel[i], of_pixel[j]), [i as u32, j as u32])
             } else {
                 ((of_pixel[j], of_pixel[i]), [j as u32, i as u32])
             };
             let entry = steps.entry(key).or_default();
-            entry.0.push(step);
+            entry.0.push((step, clear));
             if step < SOFT_STEP {
                 entry.1.push(pixels);
             }
@@ -230,11 +272,16 @@ pub fn regions(
     }
     let borders = steps
         .into_iter()
-        .map(|((a, b), (mut v, soft))| {
+        .map(|((a, b), (all, soft))| {
+            // The median over the pairs clear of a third label where there are enough of them.
+            let mut v: Vec<f32> = all.iter().filter(|p| p.1).map(|p| p.0).collect();
+            if v.len() < MIN_PAIRS {
+                v = all.iter().map(|p| p.0).collect();
+            }
             let m = v.len() / 2;
             let step = *v.select_nth_unstable_by(m, f32::total_cmp).1;
             let runs = runs(&soft, w);
-            Border { regions: [a, b], pairs: v.len(), step, soft, runs }
+            Border { regions: [a, b], pairs: all.len(), step, soft, runs }
         })
         .collect();
     Regions { of_pixel, regions, borders }
@@ -247,8 +294,8 @@ fn yields(a: &Region, b: &Region, loss: &[u8]) -> Option<usize> {
     match (is_loss(a), is_loss(b)) {
         (true, false) => Some(0),
         (false, true) => Some(1),
-        _ if a.pixels < b.pixels => Some(0),
-        _ if b.pixels < a.pixels => Some(1),
+        _ if a.thick < b.thick => Some(0),
+        _ if b.thick < a.thick => Some(1),
         _ => None,
     }
 }
@@ -277,17 +324,7 @@ fn flood(
     let mut heap: BinaryHeap<Reverse<(u32, u32, u8)>> =
         seeds.into_iter().map(|(i, c)| Reverse((0, i, c))).collect();
     let px = |i: usize| photo.data[i].map(f64::from);
-    let neighbours = |i: usize| {
-        let (x, y) = (i % w, i / w);
-        [
-            (x > 0).then(|| i - 1),
-            (x + 1 < w).then(|| i + 1),
-            (y > 0).then(|| i - w),
-            (y + 1 < h).then(|| i + w),
-        ]
-        .into_iter()
-        .flatten()
-    };
+    let neighbours = |i: usize| neighbours(i, w, h);
     // The colour step from i to its neighbour j, measured as borders are: from one pixel
     // behind i to one beyond j where the region goes on, since a blurred edge spreads its
     // step over two or three pixels.
@@ -404,8 +441,8 @@ pub fn merge_soft_regions(
                 continue;
             }
             let slot = &mut join[b.regions[y] as usize];
-            if slot.is_none_or(|(size, _)| into.pixels > size) {
-                *slot = Some((into.pixels, into.class));
+            if slot.is_none_or(|(size, _)| into.thick > size) {
+                *slot = Some((into.thick, into.class));
             }
         }
         let old = labels.to_vec();
@@ -588,6 +625,46 @@ mod tests {
         merge_soft_regions(&photo, &mut labels, 3, &[RED, CLAY, SLIP], &picks, &typical, &[1]);
         for (i, &l) in labels.iter().enumerate() {
             let want = if i < 20 * w { 0 } else { 2 };
+            assert_eq!(l, want, "({}, {})", i % w, i / w);
+        }
+    }
+
+    #[test]
+    fn a_faded_patch_that_mixed_rows_tie_to_a_bands_edges_still_joins_its_band() {
+        // A black band on slip whose middle fades towards grey-blue (the per-pixel rule gave
+        // the faded middle that class), and the band's top and bottom rows, mixed with the
+        // slip, given the same class: one region of the patch and two long one-pixel rows.
+        // Its steps to the black across those rows are sharp and outnumber the soft steps of
+        // the fade, and with the rows it has more pixels than either black piece. The median
+        // over the pairs clear of a third label and the size without one-pixel lines see the
+        // patch: the whole band is black.
+        const BLACK: [f64; 3] = [0.03, 0.03, 0.03];
+        const GREY: [f64; 3] = [0.09, 0.14, 0.19];
+        let (w, h) = (W, H);
+        let mut photo = LinearImage::new(w as u32, h as u32).unwrap();
+        let mut labels = vec![2u8; w * h];
+        let band = |x: usize, y: usize| (10..110).contains(&x) && (20..30).contains(&y);
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let t = 1.0 + 0.01 * (((x * 7 + y * 13) % 5) as f64 - 2.0);
+                let f = 0.9 * (1.0 - (x as f64 - 60.0).abs() / 20.0).max(0.0);
+                let (colour, label) = if !band(x, y) {
+                    (SLIP, 2)
+                } else if y == 20 || y == 29 {
+                    ([0, 1, 2].map(|j| 0.5 * (BLACK[j] + SLIP[j])), 1)
+                } else {
+                    ([0, 1, 2].map(|j| BLACK[j] + f * (GREY[j] - BLACK[j])), u8::from(f > 0.45))
+                };
+                photo.data[i] = colour.map(|c| (c * t) as f32);
+                labels[i] = label;
+            }
+        }
+        let typical = vec![false; w * h];
+        let picks = vec![vec![], vec![], vec![at(5, 5)]];
+        merge_soft_regions(&photo, &mut labels, 3, &[BLACK, GREY, SLIP], &picks, &typical, &[]);
+        for (i, &l) in labels.iter().enumerate() {
+            let want = if band(i % w, i / w) { 0 } else { 2 };
             assert_eq!(l, want, "({}, {})", i % w, i / w);
         }
     }
