@@ -53,7 +53,7 @@ pub struct Border {
     /// Border pixel pairs measured.
     pub pairs: usize,
     /// Median colour step across the border over the contrast between the two classes: of the
-    /// pairs with no pixel beside a third label where at least [`MIN_PAIRS`] are, else of all.
+    /// pairs with no pixel beside a third label where at least `MIN_PAIRS` are, else of all.
     pub step: f32,
     /// The pairs whose step is below [`SOFT_STEP`]: (pixel in `regions[0]`, pixel in `regions[1]`).
     pub soft: Vec<[u32; 2]>,
@@ -101,7 +101,7 @@ fn runs(soft: &[[u32; 2]], w: usize) -> Vec<[u32; 2]> {
 pub struct Region {
     pub class: u8,
     pub pixels: u32,
-    /// Its pixels outside lines one pixel wide ([`thin_pixels`]): the size a soft border
+    /// Its pixels outside lines one pixel wide (`thin_pixels`): the size a soft border
     /// compares. A row of mixed pixels along an edge or the silhouette can take the class of a
     /// patch it touches and double the patch's size.
     pub thick: u32,
