@@ -1,6 +1,7 @@
 //! Correspondences for camera pixels that no projector decoded but that lie between pixels a
 //! projector did decode: dark paint, whose Gray-code contrast drowns in the camera's noise bit
-//! by bit although the surface under it is as smooth as around it. Each such pixel's projector
+//! by bit although the surface under it is as smooth as around it, and surface turned away from
+//! the camera, where one camera pixel spans many projector pixels. Each such pixel's projector
 //! coordinate is interpolated by a local quadratic fit of the decoded neighbours, and
 //! [`crate::calibrate::fulllight::StripeSums::confirms`] keeps it only where the Gray-code
 //! images agree with it (lit on the stripes it predicts lit, dark on the others, beyond noise).
@@ -23,8 +24,13 @@ pub struct FillParams {
     pub radii: [usize; 3],
     /// Decoded neighbours needed in the window for the fit.
     pub min_neighbours: usize,
-    /// The fit's RMS residual over the neighbours must stay under this (projector pixels).
+    /// The fit's RMS residual over the neighbours must stay under this (projector pixels)...
     pub max_rms_px: f64,
+    /// ... or under this many camera pixels' worth of the fit's own gradient, where that is
+    /// more: where the surface turns away from the camera one camera pixel spans many
+    /// projector pixels, the decoded neighbours scatter by several of them, and a fit within
+    /// a fraction of a camera pixel still places the pixel's light right.
+    pub max_rms_camera_px: f64,
     /// A pixel not between decoded ones but this close to one (camera pixels, in x and y; the
     /// silhouette's rim, where a camera pixel straddles the edge) is given the fit of the
     /// smallest window, extrapolated.
@@ -33,7 +39,7 @@ pub struct FillParams {
 
 impl Default for FillParams {
     fn default() -> Self {
-        Self { radii: [6, 12, 24], min_neighbours: 24, max_rms_px: 0.5, rim_px: 2 }
+        Self { radii: [6, 12, 24], min_neighbours: 24, max_rms_px: 0.5, max_rms_camera_px: 0.125, rim_px: 2 }
     }
 }
 
@@ -123,7 +129,10 @@ fn fit_at(
         .map(|(row, m)| (0..2).map(|a| (coef[a].dot(row) - m[a] as f64).powi(2)).sum::<f64>())
         .sum();
     let rms = (sq / samples.len() as f64).sqrt();
-    (rms.is_finite() && rms <= params.max_rms_px).then(|| [coef[0][0] as f32, coef[1][0] as f32])
+    // Projector pixels per camera pixel: the Frobenius norm of the fit's Jacobian at (x, y).
+    let gradient = (0..2).map(|a| coef[a][1].powi(2) + coef[a][2].powi(2)).sum::<f64>().sqrt() / r as f64;
+    let tolerance = params.max_rms_px.max(params.max_rms_camera_px * gradient);
+    (rms.is_finite() && rms <= tolerance).then(|| [coef[0][0] as f32, coef[1][0] as f32])
 }
 
 #[cfg(test)]
@@ -177,5 +186,55 @@ mod tests {
         assert_eq!(across, 0, "{across} pixels filled across the edge");
         // The silhouette's rim is still extended, each side from its own surface.
         assert_eq!(filled.len(), 2 * (h - 6), "the rim beside the band is left empty too");
+    }
+
+    /// Surface turned away from the camera: 9 projector px per camera px along x, the decoded
+    /// coordinates scattered by up to 1.2 projector px in each axis (RMS 1.0 over both, a
+    /// ninth of a camera pixel), a band of
+    /// undecoded rows through it; above row 20, with `jump`, another surface 40 projector px off.
+    fn steep_map(w: usize, h: usize, jump: bool) -> (Vec<[f32; 2]>, impl Fn(usize, usize) -> [f32; 2]) {
+        use rand::{Rng, SeedableRng};
+        let truth = move |x: usize, y: usize| {
+            let (xf, yf) = (x as f32, y as f32);
+            let z = if jump && y < 20 { 40.0 } else { 0.0 };
+            [9.0 * xf + 0.02 * xf * xf + 0.5 * yf + z, 1.6 * yf]
+        };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let m = (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let noise: [f32; 2] = std::array::from_fn(|_| rng.gen_range(-1.2..1.2));
+                let t = truth(x, y);
+                if (20..24).contains(&y) { [f32::NAN; 2] } else { [t[0] + noise[0], t[1] + noise[1]] }
+            })
+            .collect();
+        (m, truth)
+    }
+
+    #[test]
+    fn a_surface_turned_away_is_bridged_to_a_fraction_of_a_camera_pixel() {
+        let (w, h) = (60, 50);
+        let (m, truth) = steep_map(w, h, false);
+        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
+        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        assert_eq!(filled.len(), 4 * w, "every pixel of the band");
+        for (i, u) in &filled {
+            let (x, y) = (i % w, i / w);
+            let t = truth(x, y);
+            // A quarter of a camera pixel along x is about 2.3 projector px here.
+            assert!((u[0] - t[0]).abs() < 1.0 && (u[1] - t[1]).abs() < 1.0, "({x}, {y}): {u:?} vs {t:?}");
+        }
+        // The scatter is more than the fixed tolerance allows: the gradient's share decides.
+        let fixed = FillParams { max_rms_camera_px: 0.0, ..FillParams::default() };
+        assert!(interpolate(w, h, &m, &decoded, &fixed).len() < w, "the fixed tolerance alone bridges it");
+    }
+
+    #[test]
+    fn a_jump_on_a_surface_turned_away_is_still_left_empty() {
+        let (w, h) = (60, 50);
+        let (m, _) = steep_map(w, h, true);
+        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
+        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        assert!(filled.is_empty(), "{} pixels filled across the edge", filled.len());
     }
 }
