@@ -139,6 +139,38 @@ fn fit_at(
 mod tests {
     use super::*;
 
+    /// `truth` sampled at every camera pixel of a `w x h` image, each coordinate scattered by up
+    /// to `scatter` projector px (seeded), NaN where `undecoded`.
+    fn sampled(
+        w: usize,
+        h: usize,
+        truth: &impl Fn(usize, usize) -> [f32; 2],
+        undecoded: impl Fn(usize, usize) -> bool,
+        scatter: f32,
+    ) -> Vec<[f32; 2]> {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        (0..w * h)
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
+                let t = truth(x, y);
+                let noise: [f32; 2] =
+                    std::array::from_fn(
+                        |_| {
+                            if scatter > 0.0 { rng.gen_range(-scatter..scatter) } else { 0.0 }
+                        },
+                    );
+                if undecoded(x, y) { [f32::NAN; 2] } else { [t[0] + noise[0], t[1] + noise[1]] }
+            })
+            .collect()
+    }
+
+    /// What `interpolate` fills in `m`, every finite pixel counted as decoded.
+    fn fill_gaps(w: usize, h: usize, m: &[[f32; 2]], params: &FillParams) -> Vec<(usize, [f32; 2])> {
+        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
+        interpolate(w, h, m, &decoded, params)
+    }
+
     /// A smooth map (a tilted, curved surface), with a band of undecoded rows through it and
     /// the image's right part undecoded (beyond a silhouette).
     fn map(w: usize, h: usize, jump: bool) -> (Vec<[f32; 2]>, impl Fn(usize, usize) -> [f32; 2]) {
@@ -147,21 +179,14 @@ mod tests {
             let z = if jump && y < 30 { 40.0 } else { 0.0 };
             [1.7 * xf + 0.004 * xf * xf + 0.3 * yf + z, 1.6 * yf + 0.003 * (xf - 40.0) * (yf - 20.0)]
         };
-        let m = (0..w * h)
-            .map(|i| {
-                let (x, y) = (i % w, i / w);
-                if (30..36).contains(&y) || x >= 70 { [f32::NAN; 2] } else { truth(x, y) }
-            })
-            .collect();
-        (m, truth)
+        (sampled(w, h, &truth, |x, y| (30..36).contains(&y) || x >= 70, 0.0), truth)
     }
 
     #[test]
     fn a_band_of_dark_paint_is_bridged_and_the_rim_extended_by_two_pixels() {
         let (w, h) = (100, 60);
         let (m, truth) = map(w, h, false);
-        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
-        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        let filled = fill_gaps(w, h, &m, &FillParams::default());
         let band = filled.iter().filter(|(i, _)| i % w < 70).count();
         assert_eq!(band, 6 * 70, "every band pixel left of the silhouette");
         let rim = filled.iter().filter(|(i, _)| i % w >= 70).count();
@@ -180,8 +205,7 @@ mod tests {
         // Above the band the surface is another one (an occluding edge): 40 projector px apart.
         let (w, h) = (100, 60);
         let (m, _) = map(w, h, true);
-        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
-        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        let filled = fill_gaps(w, h, &m, &FillParams::default());
         let across = filled.iter().filter(|(i, _)| i % w < 70).count();
         assert_eq!(across, 0, "{across} pixels filled across the edge");
         // The silhouette's rim is still extended, each side from its own surface.
@@ -190,51 +214,39 @@ mod tests {
 
     /// Surface turned away from the camera: 9 projector px per camera px along x, the decoded
     /// coordinates scattered by up to 1.2 projector px in each axis (RMS 1.0 over both, a
-    /// ninth of a camera pixel), a band of
-    /// undecoded rows through it; above row 20, with `jump`, another surface 40 projector px off.
+    /// ninth of a camera pixel), a band of undecoded rows through it; above row 20, with
+    /// `jump`, another surface 40 projector px off.
     fn steep_map(w: usize, h: usize, jump: bool) -> (Vec<[f32; 2]>, impl Fn(usize, usize) -> [f32; 2]) {
-        use rand::{Rng, SeedableRng};
         let truth = move |x: usize, y: usize| {
             let (xf, yf) = (x as f32, y as f32);
             let z = if jump && y < 20 { 40.0 } else { 0.0 };
             [9.0 * xf + 0.02 * xf * xf + 0.5 * yf + z, 1.6 * yf]
         };
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let m = (0..w * h)
-            .map(|i| {
-                let (x, y) = (i % w, i / w);
-                let noise: [f32; 2] = std::array::from_fn(|_| rng.gen_range(-1.2..1.2));
-                let t = truth(x, y);
-                if (20..24).contains(&y) { [f32::NAN; 2] } else { [t[0] + noise[0], t[1] + noise[1]] }
-            })
-            .collect();
-        (m, truth)
+        (sampled(w, h, &truth, |_, y| (20..24).contains(&y), 1.2), truth)
     }
 
     #[test]
     fn a_surface_turned_away_is_bridged_to_a_fraction_of_a_camera_pixel() {
         let (w, h) = (60, 50);
         let (m, truth) = steep_map(w, h, false);
-        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
-        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        let filled = fill_gaps(w, h, &m, &FillParams::default());
         assert_eq!(filled.len(), 4 * w, "every pixel of the band");
         for (i, u) in &filled {
             let (x, y) = (i % w, i / w);
             let t = truth(x, y);
-            // A quarter of a camera pixel along x is about 2.3 projector px here.
+            // A ninth of a camera pixel along x here.
             assert!((u[0] - t[0]).abs() < 1.0 && (u[1] - t[1]).abs() < 1.0, "({x}, {y}): {u:?} vs {t:?}");
         }
         // The scatter is more than the fixed tolerance allows: the gradient's share decides.
         let fixed = FillParams { max_rms_camera_px: 0.0, ..FillParams::default() };
-        assert!(interpolate(w, h, &m, &decoded, &fixed).len() < w, "the fixed tolerance alone bridges it");
+        assert!(fill_gaps(w, h, &m, &fixed).len() < w, "the fixed tolerance alone bridges it");
     }
 
     #[test]
     fn a_jump_on_a_surface_turned_away_is_still_left_empty() {
         let (w, h) = (60, 50);
         let (m, _) = steep_map(w, h, true);
-        let decoded: Vec<bool> = m.iter().map(|c| c[0].is_finite()).collect();
-        let filled = interpolate(w, h, &m, &decoded, &FillParams::default());
+        let filled = fill_gaps(w, h, &m, &FillParams::default());
         assert!(filled.is_empty(), "{} pixels filled across the edge", filled.len());
     }
 }
