@@ -7,8 +7,9 @@
 //! images agree with it (lit on the stripes it predicts lit, dark on the others, beyond noise).
 //! The silhouette's rim (within 2 px of decoded pixels, decoded on one side only: camera pixels
 //! straddling the edge) is extrapolated the same way, and kept where the images show the
-//! projector's light there; beyond it nothing is filled, nor are gaps the neighbours'
-//! coordinates jump across (an occluding edge).
+//! projector's light there; nor are gaps the neighbours' coordinates jump across (an
+//! occluding edge). The fill runs in rounds, each fitting from what the last kept too, so a
+//! rim or band wider than one round reaches closes up to where the projector's light stops.
 
 use rayon::prelude::*;
 
@@ -35,21 +36,32 @@ pub struct FillParams {
     /// silhouette's rim, where a camera pixel straddles the edge) is given the fit of the
     /// smallest window, extrapolated.
     pub rim_px: i64,
+    /// Rounds at most, each fitting from the coordinates the rounds before kept too (see
+    /// [`in_rounds`]).
+    pub rounds: usize,
 }
 
 impl Default for FillParams {
     fn default() -> Self {
-        Self { radii: [6, 12, 24], min_neighbours: 24, max_rms_px: 0.5, max_rms_camera_px: 0.125, rim_px: 2 }
+        Self {
+            radii: [6, 12, 24],
+            min_neighbours: 24,
+            max_rms_px: 0.5,
+            max_rms_camera_px: 0.125,
+            rim_px: 2,
+            rounds: 4,
+        }
     }
 }
 
 /// Candidate coordinates for projector map `map` (camera `w x h`, NaN where not decoded) at the
-/// pixels where `decoded_by_any` is false: `(pixel, projector coordinate)`.
+/// pixels where `skip` is false (the caller skips the pixels a projector decoded): `(pixel,
+/// projector coordinate)`.
 pub fn interpolate(
     w: usize,
     h: usize,
     map: &[[f32; 2]],
-    decoded_by_any: &[bool],
+    skip: &[bool],
     params: &FillParams,
 ) -> Vec<(usize, [f32; 2])> {
     let valid = |x: i64, y: i64| {
@@ -61,7 +73,7 @@ pub fn interpolate(
     };
     (0..w * h)
         .into_par_iter()
-        .filter(|&i| !decoded_by_any[i])
+        .filter(|&i| !skip[i])
         .filter_map(|i| {
             let (x, y) = ((i % w) as i64, (i / w) as i64);
             let between = params.radii.iter().find_map(|&r| {
@@ -84,6 +96,60 @@ pub fn interpolate(
                 .map(|u| (i, u))
         })
         .collect()
+}
+
+/// Fills `maps` (one per projector, NaN where not decoded) in rounds, each fitting
+/// ([`interpolate`]) from what the rounds before kept too, so that a band wider than a window
+/// reaches or a rim wider than `rim_px` closes, until a round keeps nothing or
+/// `params.rounds` have run. Only pixels no projector decoded are filled (one that a projector
+/// decoded and another did not is the other's shadow); one that a projector's fit filled may
+/// get another's in a later round. Each round `measure`s the maps with its candidates in
+/// place, and a candidate is kept where `confirms(measurement, projector, pixel)`. Returns per
+/// projector the pixels kept in each round, and the last round's measurement.
+pub fn in_rounds<S, E>(
+    w: usize,
+    h: usize,
+    maps: &mut [Vec<[f32; 2]>],
+    params: &FillParams,
+    mut measure: impl FnMut(&[Vec<[f32; 2]>]) -> Result<S, E>,
+    confirms: impl Fn(&S, usize, usize) -> bool,
+) -> Result<(Vec<Vec<usize>>, S), E> {
+    let decoded: Vec<bool> = (0..w * h).map(|i| maps.iter().any(|m| m[i][0].is_finite())).collect();
+    let mut kept = vec![Vec::new(); maps.len()];
+    let mut last = None;
+    for _ in 0..params.rounds.max(1) {
+        let candidates: Vec<Vec<(usize, [f32; 2])>> = maps
+            .iter()
+            .map(|m| {
+                let skip: Vec<bool> = decoded.iter().zip(m).map(|(&d, u)| d || u[0].is_finite()).collect();
+                interpolate(w, h, m, &skip, params)
+            })
+            .collect();
+        if last.is_some() && candidates.iter().all(Vec::is_empty) {
+            break;
+        }
+        let mut tentative = maps.to_vec();
+        for (map, cands) in tentative.iter_mut().zip(&candidates) {
+            for &(i, u) in cands {
+                map[i] = u;
+            }
+        }
+        let measured = measure(&tentative)?;
+        let mut added = 0;
+        for (k, cands) in candidates.iter().enumerate() {
+            let before = added;
+            for &(i, u) in cands.iter().filter(|&&(i, _)| confirms(&measured, k, i)) {
+                maps[k][i] = u;
+                added += 1;
+            }
+            kept[k].push(added - before);
+        }
+        last = Some(measured);
+        if added == 0 {
+            break;
+        }
+    }
+    Ok((kept, last.expect("at least one round runs")))
 }
 
 /// Least-squares quadratic of each projector coordinate over the decoded pixels within `r`
@@ -210,6 +276,54 @@ mod tests {
         assert_eq!(across, 0, "{across} pixels filled across the edge");
         // The silhouette's rim is still extended, each side from its own surface.
         assert_eq!(filled.len(), 2 * (h - 6), "the rim beside the band is left empty too");
+    }
+
+    #[test]
+    fn rounds_close_a_rim_wider_than_one_round_reaches_and_stop_where_the_light_does() {
+        // The object ends at column 76 and its last 6 columns were not decoded; a second
+        // projector, shadowed from column 50 on, decoded the object's left part only.
+        let (w, h) = (100, 40);
+        let (object_end, decoded_end, shadow) = (76, 70, 50);
+        let truth = |x: usize, y: usize| {
+            let (xf, yf) = (x as f32, y as f32);
+            [1.7 * xf + 0.004 * xf * xf + 0.3 * yf, 1.6 * yf + 0.003 * (xf - 40.0) * (yf - 20.0)]
+        };
+        let maps = vec![
+            sampled(w, h, &truth, |x, _| x >= decoded_end, 0.0),
+            sampled(w, h, &truth, |x, _| x >= shadow, 0.0),
+        ];
+        // The "images" confirm any coordinate on the object within 3 projector px of the truth,
+        // even projector 1's in its shadow: what keeps that empty is that projector 0 decoded it.
+        let run = |rounds: usize| {
+            let mut maps = maps.clone();
+            let params = FillParams { rounds, ..FillParams::default() };
+            let confirms = |m: &Vec<Vec<[f32; 2]>>, k: usize, i: usize| {
+                let (x, y) = (i % w, i / w);
+                let (u, t) = (m[k][i], truth(x, y));
+                x < object_end && (u[0] - t[0]).hypot(u[1] - t[1]) < 3.0
+            };
+            let (kept, _) =
+                in_rounds(w, h, &mut maps, &params, |m| Ok::<_, ()>(m.to_vec()), confirms).unwrap();
+            (kept, maps)
+        };
+        let (kept, _) = run(1);
+        assert_eq!(kept, [vec![2 * h], vec![0]], "one round: the 2 px rim");
+        let (kept, maps) = run(FillParams::default().rounds);
+        assert_eq!(
+            kept[0],
+            [2 * h, 2 * h, 2 * h, 0],
+            "three rounds to the object's edge, a fourth finds nothing"
+        );
+        assert!(kept[1].iter().all(|&n| n == 0), "the shadowed projector's gap is not filled: {:?}", kept[1]);
+        for (i, u) in maps[0].iter().enumerate() {
+            let (x, y) = (i % w, i / w);
+            if x >= object_end {
+                assert!(u[0].is_nan(), "({x}, {y}) filled beyond the object");
+            } else {
+                let t = truth(x, y);
+                assert!((u[0] - t[0]).abs() < 0.2 && (u[1] - t[1]).abs() < 0.2, "({x}, {y}): {u:?} vs {t:?}");
+            }
+        }
     }
 
     /// Surface turned away from the camera: 9 projector px per camera px along x, the decoded

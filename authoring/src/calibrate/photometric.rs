@@ -290,37 +290,27 @@ pub fn calibrate_photometry(
         report.radiometry.push(rad);
         blacks.push(black);
     }
-    // Pixels no projector decoded between pixels a projector did (dark paint): coordinates
-    // interpolated from the neighbours, kept where that projector's Gray-code images confirm
-    // them. The same images' stripes then measure each projector's full light again.
+    // Pixels no projector decoded between pixels a projector did (dark paint, surface turned
+    // away from the camera, the silhouette's rim): coordinates fitted to the neighbours, kept
+    // where that projector's Gray-code images confirm them, in rounds; the last round's
+    // stripes then measure each projector's full light again.
     let (w, h) = (size.0 as usize, size.1 as usize);
-    let decoded: Vec<bool> =
-        (0..w * h).map(|i| model.correspondences.iter().any(|m| m[i][0].is_finite())).collect();
-    let candidates: Vec<Vec<(usize, [f32; 2])>> = model
-        .correspondences
-        .iter()
-        .map(|m| fill::interpolate(w, h, m, &decoded, &FillParams::default()))
-        .collect();
-    let mut tentative = model.correspondences.clone();
-    for (map, cands) in tentative.iter_mut().zip(&candidates) {
-        for &(i, u) in cands {
-            map[i] = u;
-        }
-    }
-    let sums = fulllight::stripe_sums(dir, manifest, size, &tentative, progress)?;
-    for (k, cands) in candidates.iter().enumerate() {
-        let kept: Vec<_> = cands.iter().filter(|&&(i, _)| sums.confirms(k, i, fill::MIN_Z)).collect();
-        for &&(i, u) in &kept {
-            model.correspondences[k][i] = u;
-        }
+    let (filled, sums) = fill::in_rounds(
+        w,
+        h,
+        &mut model.correspondences,
+        &FillParams::default(),
+        |tentative| fulllight::stripe_sums(dir, manifest, size, tentative, progress),
+        |sums, k, i| sums.confirms(k, i, fill::MIN_Z),
+    )?;
+    for (k, counts) in filled.iter().enumerate() {
         info!(
-            "projector {k}: {} of {} interpolated coordinates at pixels no projector decoded confirmed by \
-             its Gray-code images",
-            kept.len(),
-            cands.len()
+            "projector {k}: {} coordinates fitted at pixels no projector decoded confirmed by its \
+             Gray-code images (per round {counts:?})",
+            counts.iter().sum::<usize>()
         );
-        report.filled.push(kept.len());
     }
+    report.filled = filled.iter().map(|c| c.iter().sum()).collect();
     let refined = sums.refine(&mut lits, 4);
     info!("full light per projector averaged over the Gray-code stripes at {refined:?} camera pixels");
     // The dots moved the correspondences: triangulate again with the same projectors, so that
