@@ -7,9 +7,9 @@
 //! images agree with it (lit on the stripes it predicts lit, dark on the others, beyond noise).
 //! The silhouette's rim (within 2 px of decoded pixels, decoded on one side only: camera pixels
 //! straddling the edge) is extrapolated the same way, and kept where the images show the
-//! projector's light there; nor are gaps the neighbours' coordinates jump across (an
-//! occluding edge). The fill runs in rounds, each fitting from what the last kept too, so a
-//! rim or band wider than one round reaches closes up to where the projector's light stops.
+//! projector's light there. Gaps the neighbours' coordinates jump across (an occluding edge)
+//! are left empty. The fill runs in rounds, each fitting from what the last kept too, so a rim
+//! or band wider than one round reaches closes up to where the projector's light stops.
 
 use rayon::prelude::*;
 
