@@ -1,12 +1,15 @@
 //! Which part of a calibrated stage model costs the visitor's view (README, "Compensation"):
 //! the calibrated model of a simulated capture compensated as it is, then with one part at a
 //! time replaced by the virtual stage's truth (room light and black level per pixel, gains,
-//! projector responses, black levels, lux), each judged with the capture's true physics
-//! (formula, m = 8). Also prints the calibrated responses against the true ones at the dark end,
-//! and the gains' error by how much light a pixel returns.
+//! projector responses, black levels, normals, points, correspondences, projector poses, lux;
+//! the measured transport dropped, as the truth has none), each judged with the capture's true
+//! physics (formula, m = 8; the clip fraction chosen as `compensate` chooses it by default), with
+//! the global scale and the share of points the black level lifts. Also prints the calibrated
+//! responses against the true ones at the dark end, and the gains' error by how much light a
+//! pixel returns.
 //!
-//! `cargo run --release -p restage-authoring --example calib_probe -- CAPTURE STAGE [E_BOUND]`
-//! (default 50 lx; about 15 s a row at 800x600).
+//! `cargo run --release -p restage-authoring --example calib_probe -- CAPTURE STAGE [E_BOUND
+//! [ONLY]]` (default 50 lx; ONLY: run the rows whose name holds it; about 15 s a row at 800x600).
 
 use restage_authoring::calibrate::radiometry::full_irradiance;
 use restage_authoring::compensate::{Exponent, Params, Prepared};
@@ -21,7 +24,7 @@ fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let [capture, stage_dir] = [0, 1].map(|i| args.get(i).map(PathBuf::from));
     let (Some(capture), Some(stage_dir)) = (capture, stage_dir) else {
-        anyhow::bail!("usage: calib_probe CAPTURE STAGE [E_BOUND]");
+        anyhow::bail!("usage: calib_probe CAPTURE STAGE [E_BOUND [ONLY]]");
     };
     let bound: f64 = args.get(2).map(|s| s.parse()).transpose()?.unwrap_or(50.0);
     let stage = VirtualStage::new(&load_config(&capture)?)?;
@@ -89,6 +92,80 @@ fn main() -> anyhow::Result<()> {
             Box::new(|m, t| m.projectors.iter_mut().zip(&t.projectors).for_each(|(p, q)| p.black = q.black)),
         ),
         (
+            "true normals",
+            Box::new(|m, t| {
+                for i in 0..m.points.len() {
+                    if m.points[i][0].is_finite() && t.normals[i][0].is_finite() {
+                        m.normals[i] = t.normals[i];
+                    }
+                }
+            }),
+        ),
+        (
+            "true points and normals",
+            Box::new(|m, t| {
+                for i in 0..m.points.len() {
+                    if m.points[i][0].is_finite() && t.points[i][0].is_finite() {
+                        m.points[i] = t.points[i];
+                        m.normals[i] = t.normals[i];
+                    }
+                }
+            }),
+        ),
+        (
+            "true correspondences",
+            Box::new(|m, t| {
+                for (c, u) in m.correspondences.iter_mut().zip(&t.correspondences) {
+                    for (a, b) in c.iter_mut().zip(u) {
+                        if a[0].is_finite() && b[0].is_finite() {
+                            *a = *b;
+                        }
+                    }
+                }
+            }),
+        ),
+        (
+            "true projector poses and lenses",
+            Box::new(|m, t| {
+                for (p, q) in m.projectors.iter_mut().zip(&t.projectors) {
+                    (p.f, p.cx, p.cy, p.rotation, p.translation) =
+                        (q.f, q.cx, q.cy, q.rotation, q.translation);
+                }
+            }),
+        ),
+        (
+            "all true but which pixels are covered",
+            Box::new(|m, t| {
+                for i in 0..m.points.len() {
+                    if m.points[i][0].is_finite() && t.points[i][0].is_finite() {
+                        (m.points[i], m.normals[i], m.gain[i], m.ambient[i]) =
+                            (t.points[i], t.normals[i], t.gain[i], t.ambient[i]);
+                        for (c, u) in m.correspondences.iter_mut().zip(&t.correspondences) {
+                            c[i] = u[i];
+                        }
+                    }
+                }
+                m.projectors = t.projectors.clone();
+                m.transport = t.transport.clone();
+            }),
+        ),
+        (
+            "no measured transport",
+            Box::new(|m, _| m.transport.iter_mut().for_each(|t| *t = Default::default())),
+        ),
+        (
+            "true correspondences where either has one",
+            Box::new(|m, t| {
+                for i in 0..m.points.len() {
+                    if m.points[i][0].is_finite() && t.points[i][0].is_finite() {
+                        for (c, u) in m.correspondences.iter_mut().zip(&t.correspondences) {
+                            c[i] = u[i];
+                        }
+                    }
+                }
+            }),
+        ),
+        (
             "true lux and vignetting",
             Box::new(|m, t| {
                 for (p, q) in m.projectors.iter_mut().zip(&t.projectors) {
@@ -99,18 +176,24 @@ fn main() -> anyhow::Result<()> {
         ),
     ];
     println!("{bound} lx, formula: CIEDE2000 mean / p95 on covered pixels, in chips, in their rings");
+    let only = args.get(3);
     for (name, swap) in variants {
+        if only.is_some_and(|o| !name.contains(o.as_str())) {
+            continue;
+        }
         let mut model = calibrated.clone();
         swap(&mut model, &truth);
         let prep = Prepared::new(&model, params.reduction)?;
         let rows = visitor_view(name, &stage, &model, &prep, &target, &params)?;
         let get = |s: &str| rows.iter().find(|r| r.name.contains(s)).map_or(f64::NAN, |r| r.value);
         println!(
-            "  {name}: {:.2} / {:.2}, chips {:.2}, rings {:.2}",
+            "  {name}: {:.2} / {:.2}, chips {:.2}, rings {:.2}, scale {:.4}, below black {:.1} %",
             get("CIEDE2000 mean (m"),
             get("CIEDE2000 p95"),
             get("mean in chips"),
-            get("ring around")
+            get("ring around"),
+            get("global scale"),
+            get("less light than the black")
         );
     }
     Ok(())

@@ -326,6 +326,10 @@ pub struct DotImageResult {
     pub not_found: usize,
     /// Dots whose blob ran into the search window's edge.
     pub truncated: usize,
+    /// Dots where the blob found lies nearer a neighbouring dot's predicted position than the
+    /// dot's own: the dot itself was too dark to find (dark paint, a shadow) and the light
+    /// found is its neighbour's, which must not become this pixel's footprint.
+    pub elsewhere: usize,
     /// Blobs with a saturated pixel.
     pub saturated: usize,
     /// Blobs cut by the edge of the projector's lit area ([`Blob::clipped`]).
@@ -337,16 +341,32 @@ pub struct DotImageResult {
 impl DotImageResult {
     /// Dots that were searched for (had a prediction).
     pub fn predicted(&self) -> usize {
-        self.blobs.len() + self.not_found + self.truncated
+        self.blobs.len() + self.missed()
+    }
+
+    /// Dots predicted on the object that yielded no blob of their own.
+    pub fn missed(&self) -> usize {
+        self.not_found + self.truncated + self.elsewhere
     }
 }
 
-/// Search radius for a dot: half the camera distance to the nearest neighbouring dot of the same
-/// image, so that neighbouring blobs never share a window.
-fn search_radius(pred: &Predictor, qx: u32, qy: u32, here: [f32; 2], spacing: u32, max_radius: u32) -> u32 {
+/// Search radius for a dot: half the camera distance to the nearest of the eight neighbouring
+/// dots of the same image, so that neighbouring blobs never share a window; and that half distance itself (not
+/// rounded or clamped; infinite when no neighbour is predicted), beyond which a blob's centre
+/// is nearer a neighbour than this dot.
+fn search_radius(
+    pred: &Predictor,
+    qx: u32,
+    qy: u32,
+    here: [f32; 2],
+    spacing: u32,
+    max_radius: u32,
+) -> (u32, f32) {
     let mut nearest = f32::INFINITY;
     let s = spacing as i64;
-    for (ox, oy) in [(s, 0), (-s, 0), (0, s), (0, -s)] {
+    // Diagonal neighbours too: where the projector's image is sheared in the camera's, a
+    // diagonal neighbour can land nearer than the four along the axes.
+    for (ox, oy) in [(s, 0), (-s, 0), (0, s), (0, -s), (s, s), (-s, -s), (s, -s), (-s, s)] {
         let (nx, ny) = (qx as i64 + ox, qy as i64 + oy);
         if nx < 0 || ny < 0 || nx >= pred.proj_width as i64 || ny >= pred.proj_height as i64 {
             continue;
@@ -356,9 +376,9 @@ fn search_radius(pred: &Predictor, qx: u32, qy: u32, here: [f32; 2], spacing: u3
         }
     }
     if !nearest.is_finite() {
-        return (spacing / 2).clamp(2, max_radius);
+        return ((spacing / 2).clamp(2, max_radius), f32::INFINITY);
     }
-    ((nearest * 0.5).floor() as u32).clamp(2, max_radius)
+    (((nearest * 0.5).floor() as u32).clamp(2, max_radius), nearest * 0.5)
 }
 
 /// Snaps every dot of one dot image (`spacing`, shift `dx`, `dy`).
@@ -381,8 +401,13 @@ pub fn snap_dot_image(
                 out.off_object += 1;
                 continue;
             };
-            let radius = search_radius(pred, qx, qy, guess, spacing, params.max_radius);
+            let (radius, halfway) = search_radius(pred, qx, qy, guess, spacing, params.max_radius);
             match snap_blob(image, ctx, guess, radius, detect, member) {
+                // The window reaches halfway to the neighbours (further where the minimum radius
+                // applies), so a dark dot's window can hold a neighbour's bright edge.
+                Ok(blob) if (blob.centre[0] - guess[0]).hypot(blob.centre[1] - guess[1]) > halfway => {
+                    out.elsewhere += 1
+                }
                 Ok(blob) => {
                     out.saturated += blob.saturated as usize;
                     out.clipped += blob.clipped as usize;
@@ -461,7 +486,7 @@ pub fn assemble(
             });
         }
         let predicted = r.predicted();
-        if predicted > 0 && (r.not_found + r.truncated) * 5 > predicted {
+        if predicted > 0 && r.missed() * 5 > predicted {
             sparse.push((name, r));
         }
         if r.saturated > 0 {
@@ -474,27 +499,31 @@ pub fn assemble(
         [] => {}
         [(name, r)] => warnings.push(format!(
             "projector {projector}: {name}: {} of {} dots predicted on the object were not found ({} not \
-             found, {} merged or smeared); the correspondences there are kept unrefined",
-            r.not_found + r.truncated,
+             found, {} merged or smeared, {} where only a neighbour's light was found); the correspondences \
+             there are kept unrefined",
+            r.missed(),
             r.predicted(),
             r.not_found,
-            r.truncated
+            r.truncated,
+            r.elsewhere
         )),
         many => {
             let sum = |f: &dyn Fn(&DotImageResult) -> usize| many.iter().map(|(_, r)| f(r)).sum::<usize>();
-            let share = |r: &DotImageResult| (r.not_found + r.truncated) as f64 / r.predicted() as f64;
+            let share = |r: &DotImageResult| r.missed() as f64 / r.predicted() as f64;
             let (worst, wr) =
                 many.iter().max_by(|a, b| share(a.1).total_cmp(&share(b.1))).copied().unwrap_or(many[0]);
             warnings.push(format!(
                 "projector {projector}: in {} of {} dot images more than a fifth of the dots predicted on the \
-                 object were not found ({} of {} in all: {} not found, {} merged or smeared; worst {worst}, \
-                 {:.0} %); the correspondences there are kept unrefined",
+                 object were not found ({} of {} in all: {} not found, {} merged or smeared, {} where only a \
+                 neighbour's light was found; worst {worst}, {:.0} %); the correspondences there are kept \
+                 unrefined",
                 many.len(),
                 images.len(),
-                sum(&|r| r.not_found + r.truncated),
+                sum(&|r| r.missed()),
                 sum(&|r| r.predicted()),
                 sum(&|r| r.not_found),
                 sum(&|r| r.truncated),
+                sum(&|r| r.elsewhere),
                 100.0 * share(wr)
             ));
         }
@@ -1060,6 +1089,52 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(err.contains("proj0/white.png") && err.contains("saturated"), "{err}");
+    }
+
+    #[test]
+    fn a_diagonal_neighbour_nearer_than_the_axis_ones_bounds_the_window() {
+        // A sheared view (the bowl's flank at seed 9): projector x runs along camera x, projector
+        // y mostly along camera x too, so the dot at (+8, -8) lands 2.9 camera px away while
+        // those at (+8, 0) and (0, +8) are 11-12 px away. A window sized by the axis neighbours
+        // (5 px) held the diagonal neighbour's whole blob, which became this dot's footprint.
+        let (cam_w, proj_w, proj_h) = (200u32, 48u32, 40u32);
+        let cam = |q: [f32; 2]| [10.0 + 1.5 * q[0] + 1.4 * q[1], 30.0 + 0.3 * q[0] - 0.05 * q[1]];
+        let mut corr = vec![[f32::NAN; 2]; (cam_w * 60) as usize];
+        for qy in 0..proj_h {
+            for qx in 0..proj_w {
+                let c = cam([qx as f32, qy as f32]);
+                corr[c[1].round() as usize * cam_w as usize + c[0].round() as usize] = [qx as f32, qy as f32];
+            }
+        }
+        let pred = Predictor::new(&corr, cam_w, proj_w, proj_h);
+        let (qx, qy) = (16, 16);
+        let here = pred.predict(qx, qy).unwrap();
+        let (radius, halfway) = search_radius(&pred, qx, qy, here, 8, 24);
+        let diagonal = pred.predict(qx + 8, qy - 8).unwrap();
+        let half_diagonal = 0.5 * (diagonal[0] - here[0]).hypot(diagonal[1] - here[1]);
+        assert!(half_diagonal < 2.0, "the set-up: the diagonal neighbour is {half_diagonal} px halfway");
+        assert_eq!(radius, 2, "the smallest window");
+        assert!(halfway <= half_diagonal + 1e-4, "halfway {halfway} vs {half_diagonal}");
+    }
+
+    #[test]
+    fn a_dot_too_dark_to_find_does_not_take_its_neighbours_light() {
+        // Dots 2 projector px apart land 3 camera px apart, so even the smallest window (2 px)
+        // reaches past halfway to the neighbours. Only the neighbour (12, 10) is lit: the dot
+        // at (10, 10) (dark paint, a shadow) must not be given its blob.
+        let synth = Synth { scale: 1.5, sigma: 0.45, ..Synth::new(5) };
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let black = synth.render(|_, _| false, &mut rng, 1.0);
+        let white = synth.render(|_, _| true, &mut rng, 1.0);
+        let corr = synth.correspondences(&mut rng, 0.0);
+        let params = SnapParams::default();
+        let ctx = SnapContext::new(&black, &white, synth.noise, &params);
+        let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        let img = synth.render(|x, y| (x, y) == (12, 10), &mut rng, 1.0);
+        let r = snap_dot_image(&DotSignal::from_linear(&img), &ctx, &pred, 2, (0, 0), &params);
+        let found: Vec<u32> = r.blobs.iter().map(|(q, _)| *q).collect();
+        assert_eq!(found, vec![10 * synth.proj_w + 12], "{r:?}");
+        assert!(r.elsewhere >= 1, "{r:?}");
     }
 
     #[test]
