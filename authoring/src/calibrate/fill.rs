@@ -1,14 +1,15 @@
-//! Correspondences for camera pixels that no projector decoded but that lie between pixels a
-//! projector did decode: dark paint, whose Gray-code contrast drowns in the camera's noise bit
-//! by bit although the surface under it is as smooth as around it, and surface turned away from
-//! the camera, where one camera pixel spans many projector pixels. Each such pixel's projector
+//! Correspondences for camera pixels that a projector did not decode but that lie between
+//! pixels it did: dark paint, whose Gray-code contrast drowns in the camera's noise bit by bit
+//! although the surface under it is as smooth as around it, and surface turned away from the
+//! camera, where one camera pixel spans many projector pixels. Each such pixel's projector
 //! coordinate is interpolated by a local quadratic fit of the decoded neighbours, and
 //! [`crate::calibrate::fulllight::StripeSums::confirms`] keeps it only where the Gray-code
 //! images agree with it (lit on the stripes it predicts lit, dark on the others, beyond noise).
 //! The silhouette's rim (within 2 px of decoded pixels, decoded on one side only: camera pixels
 //! straddling the edge) is extrapolated the same way, and kept where the images show the
 //! projector's light there. Gaps the neighbours' coordinates jump across (an occluding edge)
-//! are left empty. The fill runs in rounds, each fitting from what the last kept too, so a rim
+//! are left empty, and so is a projector's shadow, where its images show no light, whether or
+//! not another projector decoded the pixel. The fill runs in rounds, each fitting from what the last kept too, so a rim
 //! or band wider than one round reaches closes up to where the projector's light stops.
 
 use rayon::prelude::*;
@@ -101,9 +102,9 @@ pub fn interpolate(
 /// Fills `maps` (one per projector, NaN where not decoded) in rounds, each fitting
 /// ([`interpolate`]) from what the rounds before kept too, so that a band wider than a window
 /// reaches or a rim wider than `rim_px` closes, until a round keeps nothing or
-/// `params.rounds` have run. Only pixels no projector decoded are filled (one that a projector
-/// decoded and another did not is the other's shadow); one that a projector's fit filled may
-/// get another's in a later round. Each round `measure`s the maps with its candidates in
+/// `params.rounds` have run. Every pixel a projector has no coordinate for is a candidate for
+/// it, decoded by another projector or not: `confirms` tells its shadow (no light there) from
+/// its dark paint (light too faint to decode). Each round `measure`s the maps with its candidates in
 /// place, and a candidate is kept where `confirms(measurement, projector, pixel)`. Returns per
 /// projector the pixels kept in each round, and the last round's measurement.
 pub fn in_rounds<S, E>(
@@ -114,14 +115,13 @@ pub fn in_rounds<S, E>(
     mut measure: impl FnMut(&[Vec<[f32; 2]>]) -> Result<S, E>,
     confirms: impl Fn(&S, usize, usize) -> bool,
 ) -> Result<(Vec<Vec<usize>>, S), E> {
-    let decoded: Vec<bool> = (0..w * h).map(|i| maps.iter().any(|m| m[i][0].is_finite())).collect();
     let mut kept = vec![Vec::new(); maps.len()];
     let mut last = None;
     for _ in 0..params.rounds.max(1) {
         let candidates: Vec<Vec<(usize, [f32; 2])>> = maps
             .iter()
             .map(|m| {
-                let skip: Vec<bool> = decoded.iter().zip(m).map(|(&d, u)| d || u[0].is_finite()).collect();
+                let skip: Vec<bool> = m.iter().map(|u| u[0].is_finite()).collect();
                 interpolate(w, h, m, &skip, params)
             })
             .collect();
@@ -281,47 +281,54 @@ mod tests {
     #[test]
     fn rounds_close_a_rim_wider_than_one_round_reaches_and_stop_where_the_light_does() {
         // The object ends at column 76 and its last 6 columns were not decoded; a second
-        // projector, shadowed from column 50 on, decoded the object's left part only.
+        // projector, shadowed from column 50 on, decoded the object up to column 44 only (a band
+        // of dark paint it lights but could not decode before its shadow).
         let (w, h) = (100, 40);
-        let (object_end, decoded_end, shadow) = (76, 70, 50);
+        let (object_end, decoded_end, dark_paint, shadow) = (76, 70, 44, 50);
         let truth = |x: usize, y: usize| {
             let (xf, yf) = (x as f32, y as f32);
             [1.7 * xf + 0.004 * xf * xf + 0.3 * yf, 1.6 * yf + 0.003 * (xf - 40.0) * (yf - 20.0)]
         };
         let maps = vec![
             sampled(w, h, &truth, |x, _| x >= decoded_end, 0.0),
-            sampled(w, h, &truth, |x, _| x >= shadow, 0.0),
+            sampled(w, h, &truth, |x, _| x >= dark_paint, 0.0),
         ];
-        // The "images" confirm any coordinate on the object within 3 projector px of the truth,
-        // even projector 1's in its shadow: what keeps that empty is that projector 0 decoded it.
+        // The "images" confirm a coordinate within 3 projector px of the truth where the
+        // projector's light arrives: on the object, and for projector 1 before its shadow.
         let run = |rounds: usize| {
             let mut maps = maps.clone();
             let params = FillParams { rounds, ..FillParams::default() };
             let confirms = |m: &Vec<Vec<[f32; 2]>>, k: usize, i: usize| {
                 let (x, y) = (i % w, i / w);
                 let (u, t) = (m[k][i], truth(x, y));
-                x < object_end && (u[0] - t[0]).hypot(u[1] - t[1]) < 3.0
+                x < object_end && (k == 0 || x < shadow) && (u[0] - t[0]).hypot(u[1] - t[1]) < 3.0
             };
             let (kept, _) =
                 in_rounds(w, h, &mut maps, &params, |m| Ok::<_, ()>(m.to_vec()), confirms).unwrap();
             (kept, maps)
         };
         let (kept, _) = run(1);
-        assert_eq!(kept, [vec![2 * h], vec![0]], "one round: the 2 px rim");
+        assert_eq!(kept, [vec![2 * h], vec![2 * h]], "one round: the 2 px rim, for both");
         let (kept, maps) = run(FillParams::default().rounds);
         assert_eq!(
             kept[0],
             [2 * h, 2 * h, 2 * h, 0],
             "three rounds to the object's edge, a fourth finds nothing"
         );
-        assert!(kept[1].iter().all(|&n| n == 0), "the shadowed projector's gap is not filled: {:?}", kept[1]);
-        for (i, u) in maps[0].iter().enumerate() {
-            let (x, y) = (i % w, i / w);
-            if x >= object_end {
-                assert!(u[0].is_nan(), "({x}, {y}) filled beyond the object");
-            } else {
-                let t = truth(x, y);
-                assert!((u[0] - t[0]).abs() < 0.2 && (u[1] - t[1]).abs() < 0.2, "({x}, {y}): {u:?} vs {t:?}");
+        // Projector 0 decoded the dark band: projector 1 still fills it, up to its shadow.
+        assert_eq!(kept[1], [2 * h, 2 * h, 2 * h, 0], "projector 1's dark band, and not its shadow");
+        for (k, end) in [(0, object_end), (1, shadow)] {
+            for (i, u) in maps[k].iter().enumerate() {
+                let (x, y) = (i % w, i / w);
+                if x >= end {
+                    assert!(u[0].is_nan(), "projector {k}: ({x}, {y}) filled beyond its light");
+                } else {
+                    let t = truth(x, y);
+                    assert!(
+                        (u[0] - t[0]).abs() < 0.2 && (u[1] - t[1]).abs() < 0.2,
+                        "({x}, {y}): {u:?} vs {t:?}"
+                    );
+                }
             }
         }
     }

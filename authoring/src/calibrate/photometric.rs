@@ -63,7 +63,7 @@ pub struct PhotometricReport {
     /// Stray room light per channel, in lux.
     pub stray_lux: [f32; 3],
     pub lux: Vec<LuxFit>,
-    /// Per projector: camera pixels no projector decoded that [`fill`] gave its coordinates.
+    /// Per projector: camera pixels it did not decode that [`fill`] gave its coordinates.
     pub filled: Vec<usize>,
     pub warnings: Vec<String>,
 }
@@ -290,7 +290,7 @@ pub fn calibrate_photometry(
         report.radiometry.push(rad);
         blacks.push(black);
     }
-    // Pixels no projector decoded between pixels a projector did (dark paint, surface turned
+    // Pixels a projector did not decode between pixels it did (dark paint, surface turned
     // away from the camera, the silhouette's rim): coordinates fitted to the neighbours, kept
     // where that projector's Gray-code images confirm them, in rounds; the last round's
     // stripes then measure each projector's full light again.
@@ -305,7 +305,7 @@ pub fn calibrate_photometry(
     )?;
     for (k, counts) in filled.iter().enumerate() {
         info!(
-            "projector {k}: {} coordinates fitted at pixels no projector decoded confirmed by its \
+            "projector {k}: {} coordinates fitted at pixels it did not decode confirmed by its \
              Gray-code images (per round {counts:?})",
             counts.iter().sum::<usize>()
         );
@@ -763,7 +763,7 @@ pub struct ProjectorPhotometry {
     pub dots_off_object: usize,
     pub dots_predicted: usize,
     pub dots_snapped: usize,
-    /// Camera pixels no projector decoded that were given this projector's coordinates by
+    /// Camera pixels this projector did not decode that were given its coordinates by
     /// interpolation, confirmed by its Gray-code images (dark paint; `calibrate::fill`).
     #[serde(default)]
     pub filled_pixels: usize,
