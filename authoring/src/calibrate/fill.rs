@@ -9,8 +9,9 @@
 //! straddling the edge) is extrapolated the same way, and kept where the images show the
 //! projector's light there. Gaps the neighbours' coordinates jump across (an occluding edge)
 //! are left empty, and so is a projector's shadow, where its images show no light, whether or
-//! not another projector decoded the pixel. The fill runs in rounds, each fitting from what the last kept too, so a rim
-//! or band wider than one round reaches closes up to where the projector's light stops.
+//! not another projector decoded the pixel. The fill runs in rounds, each fitting from what the
+//! last kept too, so a rim or band wider than one round reaches closes up to where the
+//! projector's light stops.
 
 use rayon::prelude::*;
 
@@ -104,9 +105,10 @@ pub fn interpolate(
 /// reaches or a rim wider than `rim_px` closes, until a round keeps nothing or
 /// `params.rounds` have run. Every pixel a projector has no coordinate for is a candidate for
 /// it, decoded by another projector or not: `confirms` tells its shadow (no light there) from
-/// its dark paint (light too faint to decode). Each round `measure`s the maps with its candidates in
-/// place, and a candidate is kept where `confirms(measurement, projector, pixel)`. Returns per
-/// projector the pixels kept in each round, and the last round's measurement.
+/// its dark paint (light too faint to decode). Each round `measure`s the maps with its
+/// candidates in place, and a candidate is kept where `confirms(measurement, projector,
+/// pixel)`. Returns per projector the pixels kept in each round, and the last round's
+/// measurement.
 pub fn in_rounds<S, E>(
     w: usize,
     h: usize,

@@ -351,9 +351,9 @@ impl DotImageResult {
 }
 
 /// Search radius for a dot: half the camera distance to the nearest of the eight neighbouring
-/// dots of the same image, so that neighbouring blobs never share a window; and that half distance itself (not
-/// rounded or clamped; infinite when no neighbour is predicted), beyond which a blob's centre
-/// is nearer a neighbour than this dot.
+/// dots of the same image, so that neighbouring blobs never share a window; and that half
+/// distance itself (not rounded or clamped; infinite when no neighbour is predicted), beyond
+/// which a blob's centre is nearer a neighbour than this dot.
 fn search_radius(
     pred: &Predictor,
     qx: u32,
@@ -972,6 +972,21 @@ mod tests {
         (assemble(0, synth.proj_w, synth.proj_h, spacing, images).unwrap(), corr)
     }
 
+    /// The black and white references at `level`, exact correspondences and their predictor.
+    fn references(
+        synth: &Synth,
+        rng: &mut ChaCha8Rng,
+        level: f32,
+    ) -> (LinearImage, SnapContext, Predictor, SnapParams) {
+        let black = synth.render(|_, _| false, rng, level);
+        let white = synth.render(|_, _| true, rng, level);
+        let corr = synth.correspondences(rng, 0.0);
+        let params = SnapParams::default();
+        let ctx = SnapContext::new(&black, &white, synth.noise, &params);
+        let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        (black, ctx, pred, params)
+    }
+
     #[test]
     fn blobs_snap_to_known_centres_under_noise() {
         let synth = Synth::new(1);
@@ -1058,12 +1073,7 @@ mod tests {
     fn saturation_and_missing_dots_are_reported_by_image() {
         let synth = Synth::new(4);
         let mut rng = ChaCha8Rng::seed_from_u64(6);
-        let black = synth.render(|_, _| false, &mut rng, 0.5);
-        let white = synth.render(|_, _| true, &mut rng, 0.5);
-        let corr = synth.correspondences(&mut rng, 0.0);
-        let params = SnapParams::default();
-        let ctx = SnapContext::new(&black, &white, synth.noise, &params);
-        let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        let (black, ctx, pred, params) = references(&synth, &mut rng, 0.5);
         let bright = synth.render(|x, y| x % 8 == 0 && y % 8 == 0, &mut rng, 8.0);
         let dark = synth.render(|_, _| false, &mut rng, 0.5);
         let images = vec![
@@ -1124,12 +1134,7 @@ mod tests {
         // at (10, 10) (dark paint, a shadow) must not be given its blob.
         let synth = Synth { scale: 1.5, sigma: 0.45, ..Synth::new(5) };
         let mut rng = ChaCha8Rng::seed_from_u64(7);
-        let black = synth.render(|_, _| false, &mut rng, 1.0);
-        let white = synth.render(|_, _| true, &mut rng, 1.0);
-        let corr = synth.correspondences(&mut rng, 0.0);
-        let params = SnapParams::default();
-        let ctx = SnapContext::new(&black, &white, synth.noise, &params);
-        let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        let (_, ctx, pred, params) = references(&synth, &mut rng, 1.0);
         let img = synth.render(|x, y| (x, y) == (12, 10), &mut rng, 1.0);
         let r = snap_dot_image(&DotSignal::from_linear(&img), &ctx, &pred, 2, (0, 0), &params);
         let found: Vec<u32> = r.blobs.iter().map(|(q, _)| *q).collect();
