@@ -49,7 +49,7 @@ impl Default for FillParams {
             radii: [6, 12, 24],
             min_neighbours: 24,
             max_rms_px: 0.5,
-            max_rms_camera_px: 0.125,
+            max_rms_camera_px: 0.25,
             rim_px: 2,
             rounds: 4,
         }
@@ -336,16 +336,17 @@ mod tests {
     }
 
     /// Surface turned away from the camera: 9 projector px per camera px along x, the decoded
-    /// coordinates scattered by up to 1.2 projector px in each axis (RMS 1.0 over both, a
-    /// ninth of a camera pixel), a band of undecoded rows through it; above row 20, with
-    /// `jump`, another surface 40 projector px off.
+    /// coordinates scattered by up to 2 projector px in each axis (RMS 1.6 over both, a sixth
+    /// of a camera pixel, as the bowl's flank at seed 9 scatters about a quadratic fit there),
+    /// a band of undecoded rows through it; above row 20, with `jump`, another surface 40
+    /// projector px off.
     fn steep_map(w: usize, h: usize, jump: bool) -> (Vec<[f32; 2]>, impl Fn(usize, usize) -> [f32; 2]) {
         let truth = move |x: usize, y: usize| {
             let (xf, yf) = (x as f32, y as f32);
             let z = if jump && y < 20 { 40.0 } else { 0.0 };
             [9.0 * xf + 0.02 * xf * xf + 0.5 * yf + z, 1.6 * yf]
         };
-        (sampled(w, h, &truth, |_, y| (20..24).contains(&y), 1.2), truth)
+        (sampled(w, h, &truth, |_, y| (20..24).contains(&y), 2.0), truth)
     }
 
     #[test]
@@ -360,9 +361,13 @@ mod tests {
             // A ninth of a camera pixel along x here.
             assert!((u[0] - t[0]).abs() < 1.0 && (u[1] - t[1]).abs() < 1.0, "({x}, {y}): {u:?} vs {t:?}");
         }
-        // The scatter is more than the fixed tolerance allows: the gradient's share decides.
-        let fixed = FillParams { max_rms_camera_px: 0.0, ..FillParams::default() };
-        assert!(fill_gaps(w, h, &m, &fixed).len() < w, "the fixed tolerance alone bridges it");
+        // The scatter is more than the fixed tolerance allows, and more than an eighth of a
+        // camera pixel: a quarter of the gradient decides.
+        for camera_px in [0.0, 0.125] {
+            let tighter = FillParams { max_rms_camera_px: camera_px, ..FillParams::default() };
+            let n = fill_gaps(w, h, &m, &tighter).len();
+            assert!(n < w, "{n} pixels bridged with {camera_px} of a camera pixel's gradient");
+        }
     }
 
     #[test]
