@@ -91,25 +91,11 @@ fn main() -> anyhow::Result<()> {
             "true projector black levels",
             Box::new(|m, t| m.projectors.iter_mut().zip(&t.projectors).for_each(|(p, q)| p.black = q.black)),
         ),
-        (
-            "true normals",
-            Box::new(|m, t| {
-                for i in 0..m.points.len() {
-                    if m.points[i][0].is_finite() && t.normals[i][0].is_finite() {
-                        m.normals[i] = t.normals[i];
-                    }
-                }
-            }),
-        ),
+        ("true normals", Box::new(|m, t| at_points(m, t, |m, t, i| m.normals[i] = t.normals[i]))),
         (
             "true points and normals",
             Box::new(|m, t| {
-                for i in 0..m.points.len() {
-                    if m.points[i][0].is_finite() && t.points[i][0].is_finite() {
-                        m.points[i] = t.points[i];
-                        m.normals[i] = t.normals[i];
-                    }
-                }
+                at_points(m, t, |m, t, i| (m.points[i], m.normals[i]) = (t.points[i], t.normals[i]))
             }),
         ),
         (
@@ -136,15 +122,11 @@ fn main() -> anyhow::Result<()> {
         (
             "all true but which pixels are covered",
             Box::new(|m, t| {
-                for i in 0..m.points.len() {
-                    if m.points[i][0].is_finite() && t.points[i][0].is_finite() {
-                        (m.points[i], m.normals[i], m.gain[i], m.ambient[i]) =
-                            (t.points[i], t.normals[i], t.gain[i], t.ambient[i]);
-                        for (c, u) in m.correspondences.iter_mut().zip(&t.correspondences) {
-                            c[i] = u[i];
-                        }
-                    }
-                }
+                at_points(m, t, |m, t, i| {
+                    (m.points[i], m.normals[i], m.gain[i], m.ambient[i]) =
+                        (t.points[i], t.normals[i], t.gain[i], t.ambient[i]);
+                    true_correspondences(m, t, i);
+                });
                 m.projectors = t.projectors.clone();
                 m.transport = t.transport.clone();
             }),
@@ -153,18 +135,7 @@ fn main() -> anyhow::Result<()> {
             "no measured transport",
             Box::new(|m, _| m.transport.iter_mut().for_each(|t| *t = Default::default())),
         ),
-        (
-            "true correspondences where either has one",
-            Box::new(|m, t| {
-                for i in 0..m.points.len() {
-                    if m.points[i][0].is_finite() && t.points[i][0].is_finite() {
-                        for (c, u) in m.correspondences.iter_mut().zip(&t.correspondences) {
-                            c[i] = u[i];
-                        }
-                    }
-                }
-            }),
-        ),
+        ("true correspondences where either has one", Box::new(|m, t| at_points(m, t, true_correspondences))),
         (
             "true lux and vignetting",
             Box::new(|m, t| {
@@ -197,4 +168,20 @@ fn main() -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// Applies `swap` at every camera pixel where both models have a surface point.
+fn at_points(m: &mut StageModel, t: &StageModel, swap: impl Fn(&mut StageModel, &StageModel, usize)) {
+    for i in 0..m.points.len() {
+        if m.points[i][0].is_finite() && t.points[i][0].is_finite() {
+            swap(m, t, i);
+        }
+    }
+}
+
+/// Every projector's coordinate at pixel `i` from the truth, including where the model has none.
+fn true_correspondences(m: &mut StageModel, t: &StageModel, i: usize) {
+    for (c, u) in m.correspondences.iter_mut().zip(&t.correspondences) {
+        c[i] = u[i];
+    }
 }
