@@ -7,8 +7,8 @@
 //! compared with the demand and the difference sent back through the footprints, a few
 //! rounds of projected Landweber iteration that keep every output within `0..=1`.
 //!
-//! The demand is the formula's (scale, local dimming and headroom under the bound), so the
-//! refined frames aim at the same light. Sharper frames have brighter peaks, and the light
+//! The demand is the formula's (scale, nearest view out of reach, headroom under the
+//! bound), so the refined frames aim at the same light. Sharper frames have brighter peaks, and the light
 //! certificate charges every point with the brightest pixel that can reach it; so each
 //! pixel is held under a cap that keeps every certificate point whose block holds it within
 //! the limit (`caps`), and the refinement never leaves the guarantee more to dim than the
@@ -21,8 +21,7 @@
 use image::RgbImage;
 use rayon::prelude::*;
 
-use super::{Draft, Params, Prepared, demands, work_points};
-use crate::imgio::LinearImage;
+use super::{Draft, Params, Prepared};
 use crate::stage_model::StageModel;
 
 /// Rounds of refinement when the user does not say: the mismatch falls fastest in the first
@@ -208,25 +207,18 @@ pub fn has_footprints(stage: &StageModel) -> bool {
     }) && stage.transport.len() == stage.projectors.len()
 }
 
-/// Refines `draft.frames` in place over `params.footprint_rounds` rounds; `None` (frames
-/// untouched) when no rounds are asked for or the model has no measured footprints.
-pub fn refine(
-    stage: &StageModel,
-    prep: &Prepared,
-    target: &LinearImage,
-    params: &Params,
-    draft: &mut Draft,
-) -> Option<Refinement> {
+/// Refines `draft.frames` in place over `params.footprint_rounds` rounds towards the demand
+/// they were made for (`draft.demand`); `None` (frames untouched) when no rounds are asked for
+/// or the model has no measured footprints.
+pub fn refine(stage: &StageModel, prep: &Prepared, params: &Params, draft: &mut Draft) -> Option<Refinement> {
     if params.footprint_rounds == 0 || !has_footprints(stage) {
         return None;
     }
     let geom = &prep.geometry;
     let (n, kn) = (geom.points, geom.projectors);
-    let idx = work_points(stage, geom, target);
-    let demand = demands(stage, prep, target, &draft.weights, draft.scale, params.limit(), &idx);
     // Per camera pixel: its demand, NaN where compensation does not work.
     let mut want = vec![[f32::NAN; 3]; n];
-    for (&i, d) in idx.iter().zip(&demand) {
+    for (&i, d) in draft.idx.iter().zip(&draft.demand) {
         want[i as usize] = d.map(|v| v as f32);
     }
     let Footprints(cols) = Footprints::of(stage, prep);

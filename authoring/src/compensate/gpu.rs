@@ -1,14 +1,14 @@
-//! Compensation's per-pixel work on the GPU (`gpu/compensate.wgsl`): weights and scale caps
-//! per point, then demand, splatting and quantisation. The global scale (a quantile over all
-//! points) is taken on the CPU between the two passes with the same function as the CPU path,
-//! and the result goes through the same guarantee on the CPU afterwards. Agrees with
-//! [`super::draft_cpu`] within one 8-bit level (f32 arithmetic and fixed-point sums here).
+//! Compensation's splatting and quantisation on the GPU (`gpu/compensate.wgsl`). The
+//! per-point part — weights, the global scale and each point's demand — is
+//! [`super::plan_points`] on the CPU, as on the CPU path, and the result goes through the same
+//! guarantee on the CPU afterwards. Agrees with [`super::draft_cpu`] within one 8-bit level
+//! (f32 arithmetic and fixed-point sums here).
 
 use bytemuck::{Pod, Zeroable};
 use image::RgbImage;
 use rayon::prelude::*;
 
-use super::{CompensateError, Draft, Params, Prepared, ScaleChoice, global_scale, work_points};
+use super::{CompensateError, Draft, Params, PointPlan, Prepared, ScaleChoice, plan_points};
 use crate::gpu::Gpu;
 use crate::imgio::LinearImage;
 use crate::stage_model::StageModel;
@@ -24,9 +24,6 @@ const FIX: f32 = 2147483648.0;
 struct GpuParams {
     points: u32,
     kn: u32,
-    m: f32,
-    m_inf: u32,
-    scale: f32,
     fix: f32,
     total_px: u32,
     k_cur: u32,
@@ -34,22 +31,11 @@ struct GpuParams {
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
-struct GpuPoint {
-    t: [f32; 4],
-    g: [f32; 4],
-    a: [f32; 4],
-    h: [f32; 4],
-}
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
 struct GpuPk {
-    l: f32,
-    eta: f32,
-    cert_lux: f32,
-    _pad: f32,
     coord: [f32; 2],
     half: [f32; 2],
+    eta: f32,
+    _pad: [f32; 3],
 }
 
 #[repr(C)]
@@ -61,7 +47,7 @@ struct GpuProj {
     _pad: u32,
 }
 
-/// [`super::draft_cpu`] on `gpu`.
+/// [`super::draft_cpu`] with the splatting and quantisation on `gpu`.
 pub fn draft(
     gpu: &Gpu,
     stage: &StageModel,
@@ -71,47 +57,25 @@ pub fn draft(
 ) -> Result<Draft, CompensateError> {
     let t0 = std::time::Instant::now();
     let geom = &prep.geometry;
-    let cert = &prep.certificate;
     let kn = geom.projectors;
-    let limit = params.limit();
-    let room = cert.ambient_lux;
-    let idx = work_points(stage, geom, target);
-    if idx.is_empty() {
-        return Err(CompensateError::NoCoverage);
-    }
+    let PointPlan { weights, idx, scale, demand } = plan_points(stage, prep, target, params)?;
+    let ScaleChoice { scale, by_bound, by_sat, curve } = scale;
     let covered = idx.len();
-    let v4 = |v: [f32; 3]| [v[0], v[1], v[2], 0.0];
-    let points: Vec<GpuPoint> = idx
-        .par_iter()
-        .map(|&i| {
-            let i = i as usize;
-            let pt = cert.point_of_pixel[i] as usize;
-            GpuPoint {
-                t: v4(target.data[i]),
-                g: v4(stage.gain[i]),
-                a: v4(stage.ambient[i]),
-                h: v4(std::array::from_fn(|c| (limit - room - prep.floor[pt][c]).max(0.0) as f32)),
-            }
-        })
-        .collect();
     let pk: Vec<GpuPk> = idx
         .par_iter()
         .flat_map_iter(|&i| {
             let i = i as usize;
-            let pt = cert.point_of_pixel[i] as usize;
             (0..kn).map(move |k| {
                 let ik = i * kn + k;
-                GpuPk {
-                    l: geom.l[ik],
-                    eta: geom.eta[ik],
-                    cert_lux: cert.projectors[k].2[pt].lux_per_unit,
-                    _pad: 0.0,
-                    coord: geom.coord[ik],
-                    half: geom.half[ik],
-                }
+                GpuPk { coord: geom.coord[ik], half: geom.half[ik], eta: geom.eta[ik], _pad: [0.0; 3] }
             })
         })
         .collect();
+    let w_cov: Vec<f32> = idx
+        .par_iter()
+        .flat_map_iter(|&i| weights[i as usize * kn..(i as usize + 1) * kn].iter().copied())
+        .collect();
+    let dem: Vec<[f32; 4]> = demand.iter().map(|d| [d[0] as f32, d[1] as f32, d[2] as f32, 0.0]).collect();
     let mut offset = 0u32;
     let proj: Vec<GpuProj> = stage
         .projectors
@@ -128,53 +92,26 @@ pub fn draft(
         prep.inverse.iter().flat_map(|inv| inv.iter().flat_map(|c| c.table().iter().copied())).collect();
     let lut: Vec<u32> =
         lut.chunks(4).map(|b| u32::from_le_bytes(std::array::from_fn(|j| *b.get(j).unwrap_or(&0)))).collect();
-    let (m, m_inf) = match params.m {
-        super::Exponent::Finite(m) => (m as f32, 0),
-        super::Exponent::Infinite => (0.0, 1),
-    };
-    let mut prm = GpuParams {
-        points: covered as u32,
-        kn: kn as u32,
-        m,
-        m_inf,
-        scale: 0.0,
-        fix: FIX,
-        total_px,
-        k_cur: 0,
-    };
+    let mut prm = GpuParams { points: covered as u32, kn: kn as u32, fix: FIX, total_px, k_cur: 0 };
 
     let module = gpu.module("compensate", SHADER);
-    let p_caps = gpu.pipeline(&module, "weights_caps");
     let p_splat = gpu.pipeline(&module, "splat");
     let p_resolve = gpu.pipeline(&module, "resolve");
     let b_prm = gpu.storage("compensation parameters", std::slice::from_ref(&prm))?;
-    let b_pts = gpu.storage("object points", &points)?;
     let b_pk = gpu.storage("point-projector geometry", &pk)?;
-    let b_w = gpu.output("weights", (covered * kn * 4) as u64)?;
-    let b_caps = gpu.output("scale caps", (covered * 8) as u64)?;
+    let b_w = gpu.storage("weights", &w_cov)?;
+    let b_dem = gpu.storage("demands", &dem)?;
     let b_proj = gpu.storage("projectors", &proj)?;
     let largest = proj.iter().map(|p| p.w as u64 * p.h as u64).max().unwrap_or(1);
     let b_acc = gpu.output("splat sums", largest * 32)?;
     let b_lut = gpu.storage("inverse responses", &lut)?;
     let b_frame = gpu.output("frames", total_px as u64 * 4)?;
+    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate (GPU): uploaded");
 
-    // Pass 1: weights and caps.
-    let mut enc = gpu.device.create_command_encoder(&Default::default());
-    let g = gpu.bind(&p_caps, &[(0, &b_prm), (1, &b_pts), (2, &b_pk), (3, &b_w), (4, &b_caps)]);
-    gpu.dispatch(&mut enc, &p_caps, &g, covered as u64);
-    gpu.queue.submit([enc.finish()]);
-    let caps: Vec<[f32; 2]> = gpu.read(&b_caps, covered)?;
-    let caps: Vec<(f64, f64)> =
-        caps.iter().map(|c| (c[0] as f64, c[1] as f64)).map(|(b, s)| (unbig(b), unbig(s))).collect();
-    let ScaleChoice { scale, by_bound, by_sat, curve } = global_scale(&caps, params.clip_fraction);
-    let clip_fraction = params.clip_fraction;
-    tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, scale, "compensate (GPU): caps done");
-
-    // Pass 2 and 3, projector by projector: demand and splat, then average and quantise.
-    prm.scale = scale as f32;
+    // Projector by projector: splat, then average and quantise.
     let g_splat =
-        gpu.bind(&p_splat, &[(0, &b_prm), (1, &b_pts), (2, &b_pk), (3, &b_w), (5, &b_proj), (6, &b_acc)]);
-    let g_res = gpu.bind(&p_resolve, &[(0, &b_prm), (5, &b_proj), (6, &b_acc), (7, &b_lut), (8, &b_frame)]);
+        gpu.bind(&p_splat, &[(0, &b_prm), (1, &b_pk), (2, &b_w), (3, &b_dem), (4, &b_proj), (5, &b_acc)]);
+    let g_res = gpu.bind(&p_resolve, &[(0, &b_prm), (4, &b_proj), (5, &b_acc), (6, &b_lut), (7, &b_frame)]);
     for (k, p) in proj.iter().enumerate() {
         prm.k_cur = k as u32;
         // Applied before the next submission, so each projector's passes see their own k.
@@ -186,7 +123,6 @@ pub fn draft(
         gpu.queue.submit([enc.finish()]);
     }
     let packed: Vec<u32> = gpu.read(&b_frame, total_px as usize)?;
-    let w_cov: Vec<f32> = gpu.read(&b_w, covered * kn)?;
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate (GPU): frames done");
 
     let frames = proj
@@ -197,26 +133,18 @@ pub fn draft(
             RgbImage::from_raw(p.w, p.h, raw).expect("buffer sized to the frame")
         })
         .collect();
-    let mut weights = vec![0.0f32; geom.points * kn];
-    for (j, &i) in idx.iter().enumerate() {
-        let i = i as usize;
-        weights[i * kn..(i + 1) * kn].copy_from_slice(&w_cov[j * kn..(j + 1) * kn]);
-    }
-    // Points that are covered but not worked on (no gain, no finite target) still carry
-    // their weights for the reports, as on the CPU path.
-    let mut done = vec![false; geom.points];
-    idx.iter().for_each(|&i| done[i as usize] = true);
-    weights.par_chunks_mut(kn).zip(geom.l.par_chunks(kn)).zip(&done).for_each(|((w, l), &d)| {
-        if !d {
-            super::weights::point_weights(l, params.m, w);
-        }
-    });
-    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat, curve, clip_fraction })
-}
-
-/// The shader's stand-in for infinity back to infinity.
-fn unbig(v: f64) -> f64 {
-    if v >= 1e38 { f64::INFINITY } else { v }
+    Ok(Draft {
+        weights,
+        frames,
+        scale,
+        covered,
+        by_bound,
+        by_sat,
+        curve,
+        clip_fraction: params.clip_fraction,
+        idx,
+        demand,
+    })
 }
 
 #[cfg(test)]

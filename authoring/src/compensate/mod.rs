@@ -9,13 +9,14 @@
 //! scale) is `w_ik D_i / eta_ik`, where `eta_ik` is the lux the pixel gives per unit output.
 //! The global scale `s` is the largest that keeps every point under the bound (black level
 //! included, fix 2) and every projector unsaturated (fix 1) — except for a user-chosen small
-//! fraction of points (`clip_fraction`), which are dimmed locally instead of darkening the
-//! whole object. Outputs of the points falling on one projector pixel are averaged (tent
+//! fraction of points (`clip_fraction`), which get the view nearest their target that they
+//! can ([`gamut`]) instead of darkening the whole object. Outputs of the points falling on one projector pixel are averaged (tent
 //! splatting over each camera pixel's footprint), pixels lighting no object point stay black, and outputs go through
 //! the inverse responses to 8-bit values.
 
 pub mod certificate;
 pub mod footprint;
+pub mod gamut;
 pub mod geometry;
 pub mod gpu;
 pub mod guarantee;
@@ -556,7 +557,7 @@ pub fn compensate_on(
     // frames (fix 3).
     let finish = |mut draft: Draft, rounds: u32| -> Candidate {
         let p = Params { footprint_rounds: rounds, ..params.clone() };
-        let refinement = footprint::refine(stage, prep, target, &p, &mut draft);
+        let refinement = footprint::refine(stage, prep, &p, &mut draft);
         // Light that would land where the model cannot bound it stays dark.
         let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut draft.frames);
         tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: draft done");
@@ -595,7 +596,7 @@ pub fn compensate_on(
         (finish(asked, params.footprint_rounds), Vec::new(), Vec::new(), asked_dark)
     };
     let Candidate { draft, refinement, unseen_dark, enf } = chosen;
-    let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve, clip_fraction } = draft;
+    let Draft { weights, mut frames, scale, covered, by_bound, by_sat, curve, clip_fraction, .. } = draft;
     if let Some(note) = clip_tradeoff(&curve, clip_fraction, scale) {
         tracing::info!("{note}");
     }
@@ -798,6 +799,10 @@ pub struct Draft {
     pub curve: Vec<[f64; 2]>,
     /// The clip fraction `scale` was taken at.
     pub clip_fraction: f64,
+    /// The work points ([`work_points`]) and the demand the frames were made for at each
+    /// ([`demands`]): the footprint refinement aims at the same light.
+    pub idx: Vec<u32>,
+    pub demand: Vec<[f64; 3]>,
 }
 
 /// `target` with every pixel outside `mask` (per camera pixel, row-major, true = object)
@@ -986,7 +991,9 @@ fn headroom(prep: &Prepared, weights: &[f32], limit: f64, i: usize) -> [f64; 3] 
 }
 
 /// Per work point (`idx`), the irradiance it needs above black at global scale `scale` (lux
-/// per channel), dimmed locally where the bound or a projector's output cannot give it.
+/// per channel). Where the bound or a projector's output cannot give it, or the target lies
+/// below the black level and the room light, the point gets the light whose view is nearest
+/// its target within what it can get ([`gamut::nearest_view`]).
 pub fn demands(
     stage: &StageModel,
     prep: &Prepared,
@@ -1001,38 +1008,52 @@ pub fn demands(
     idx.par_iter()
         .map(|&i| {
             let i = i as usize;
-            let (g, a, t, b) =
-                (stage.gain[i], stage.ambient[i], target.data[i], headroom(prep, weights, limit, i));
-            let mut d: [f64; 3] = std::array::from_fn(|c| {
-                ((scale * t[c].max(0.0) as f64 - a[c] as f64) / g[c] as f64).max(0.0)
-            });
-            let mut f = 1.0f64;
-            for c in 0..3 {
-                if d[c] > 0.0 {
-                    f = f.min(b[c] / d[c]);
-                    for k in 0..kn {
-                        let w = weights[i * kn + k] as f64;
-                        if w > 0.0 {
-                            f = f.min(geom.eta[i * kn + k] as f64 / (w * d[c]));
-                        }
-                    }
+            if scale <= 0.0 {
+                return [0.0; 3];
+            }
+            let (g, a, t) = (stage.gain[i], stage.ambient[i], target.data[i]);
+            // Per channel the most light the point can take: its headroom under the bound,
+            // and what each projector's share can give at full output.
+            let mut cap = headroom(prep, weights, limit, i);
+            for k in 0..kn {
+                let w = weights[i * kn + k] as f64;
+                if w > 0.0 {
+                    let most = geom.eta[i * kn + k] as f64 / w;
+                    cap.iter_mut().for_each(|c| *c = c.min(most));
                 }
             }
-            if f < 1.0 {
-                d = d.map(|v| v * f.max(0.0));
+            let need = |c: usize| (scale * t[c].max(0.0) as f64 - a[c] as f64) / g[c] as f64;
+            if (0..3).all(|c| (0.0..=cap[c]).contains(&need(c))) {
+                return std::array::from_fn(need);
             }
-            d
+            let view = gamut::nearest_view(
+                t.map(f64::from),
+                std::array::from_fn(|c| a[c] as f64 / scale),
+                std::array::from_fn(|c| (g[c] as f64 * cap[c] + a[c] as f64) / scale),
+            );
+            std::array::from_fn(|c| ((scale * view[c] - a[c] as f64) / g[c] as f64).clamp(0.0, cap[c]))
         })
         .collect()
 }
 
-/// The CPU reference for the per-pixel work: weights, scale, demand, splat, quantisation.
-pub fn draft_cpu(
+/// The per-point part of a draft, shared by both paths: the weights (Eq. 12), the work
+/// points, the global scale from their caps, and each work point's demand ([`demands`]).
+pub struct PointPlan {
+    pub weights: Vec<f32>,
+    pub idx: Vec<u32>,
+    pub scale: ScaleChoice,
+    pub demand: Vec<[f64; 3]>,
+}
+
+/// [`PointPlan`] for `target` at `params`: always on the CPU, so that both paths splat the
+/// same demands (where a point cannot get its light, what it gets is a search whose choice
+/// can jump between two nearly equal views, [`gamut`]).
+pub fn plan_points(
     stage: &StageModel,
     prep: &Prepared,
     target: &LinearImage,
     params: &Params,
-) -> Result<Draft, CompensateError> {
+) -> Result<PointPlan, CompensateError> {
     let geom = &prep.geometry;
     let (n, kn) = (geom.points, geom.projectors);
     let limit = params.limit();
@@ -1048,7 +1069,6 @@ pub fn draft_cpu(
     if idx.is_empty() {
         return Err(CompensateError::NoCoverage);
     }
-    let covered = idx.len();
     let headroom = |i: usize| headroom(prep, &weights, limit, i);
 
     // Per point, the largest scale it can take under the bound and under saturation.
@@ -1077,11 +1097,26 @@ pub fn draft_cpu(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: caps done");
-    let ScaleChoice { scale, by_bound, by_sat, curve } = global_scale(&caps, params.clip_fraction);
-    let clip_fraction = params.clip_fraction;
-
-    let demand = demands(stage, prep, target, &weights, scale, limit, &idx);
+    let scale = global_scale(&caps, params.clip_fraction);
+    let demand = demands(stage, prep, target, &weights, scale.scale, limit, &idx);
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: demand done");
+    Ok(PointPlan { weights, idx, scale, demand })
+}
+
+/// The CPU reference for the per-pixel work: the points' plan ([`plan_points`]), splat,
+/// quantisation.
+pub fn draft_cpu(
+    stage: &StageModel,
+    prep: &Prepared,
+    target: &LinearImage,
+    params: &Params,
+) -> Result<Draft, CompensateError> {
+    let geom = &prep.geometry;
+    let kn = geom.projectors;
+    let t0 = std::time::Instant::now();
+    let PointPlan { weights, idx, scale, demand } = plan_points(stage, prep, target, params)?;
+    let ScaleChoice { scale, by_bound, by_sat, curve } = scale;
+    let (covered, clip_fraction) = (idx.len(), params.clip_fraction);
 
     // Splat each point's relative output onto the projector pixels around it (averaging).
     let frames: Vec<RgbImage> = (0..kn)
@@ -1133,7 +1168,7 @@ pub fn draft_cpu(
         })
         .collect();
     tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: splat done (CPU)");
-    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat, curve, clip_fraction })
+    Ok(Draft { weights, frames, scale, covered, by_bound, by_sat, curve, clip_fraction, idx, demand })
 }
 
 #[cfg(test)]

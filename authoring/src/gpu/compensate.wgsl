@@ -1,41 +1,30 @@
-// Compensation's per-pixel work on the GPU, the same arithmetic as the CPU reference in
-// compensate/mod.rs (f32 here): weights of Eq. 12 and each point's scale caps; then, given
-// the global scale, each point's demand split over the projectors and splatted (tent over its
-// footprint) into 64-bit fixed-point accumulators (two 32-bit atomics with carry), one
-// projector at a time; then per projector pixel the average, through the inverse response
-// table, to 8 bits. Integer atomics make the sums independent of the order the GPU runs
-// threads in; 2^-31 resolution keeps the average right even where a pixel gathers only the
-// tiny tail of a tent.
+// Compensation's splatting and quantisation on the GPU, the same arithmetic as the CPU
+// reference in compensate/mod.rs (f32 here): each point's demand (worked out on the CPU with
+// the weights and the global scale, compensate::plan_points) split over the projectors by its
+// weight and splatted (tent over its footprint) into 64-bit fixed-point accumulators (two
+// 32-bit atomics with carry), one projector at a time; then per projector pixel the average,
+// through the inverse response table, to 8 bits. Integer atomics make the sums independent of
+// the order the GPU runs threads in; 2^-31 resolution keeps the average right even where a
+// pixel gathers only the tiny tail of a tent.
 
 struct Params {
     points: u32,
     kn: u32,
-    m: f32,
-    m_inf: u32,
-    scale: f32,
     fix: f32,
     total_px: u32,
     // The projector the splat and resolve passes work on.
     k_cur: u32,
 }
 
-// One covered object point: target, gain, ambient (camera values) and the headroom under the
-// bound before the certificate's over-count (lux above the floor), per channel in xyz.
-struct Point {
-    t: vec4<f32>,
-    g: vec4<f32>,
-    a: vec4<f32>,
-    h: vec4<f32>,
-}
-
-// One point seen (or not) by one projector.
+// One point seen (or not) by one projector: its correspondence and footprint's half extent
+// (projector pixels) and its efficiency (lux per unit of relative output; 0 where unseen).
 struct PK {
-    l: f32,
-    eta: f32,
-    cert_lux: f32,
-    _pad: f32,
     coord: vec2<f32>,
     half: vec2<f32>,
+    eta: f32,
+    _pad0: f32,
+    _pad1: f32,
+    _pad2: f32,
 }
 
 struct Proj {
@@ -46,87 +35,17 @@ struct Proj {
 }
 
 @group(0) @binding(0) var<storage, read> prm: Params;
-@group(0) @binding(1) var<storage, read> pts: array<Point>;
-@group(0) @binding(2) var<storage, read> pk: array<PK>;
-@group(0) @binding(3) var<storage, read_write> weights: array<f32>;
-@group(0) @binding(4) var<storage, read_write> caps: array<vec2<f32>>;
-@group(0) @binding(5) var<storage, read> proj: array<Proj>;
-@group(0) @binding(6) var<storage, read_write> acc: array<atomic<u32>>;
-@group(0) @binding(7) var<storage, read> lut: array<u32>;
-@group(0) @binding(8) var<storage, read_write> frame: array<u32>;
-
-const BIG: f32 = 3.0e38;
+@group(0) @binding(1) var<storage, read> pk: array<PK>;
+@group(0) @binding(2) var<storage, read> weights: array<f32>;
+// Per point, the demand above black (lux per channel, xyz).
+@group(0) @binding(3) var<storage, read> dem: array<vec4<f32>>;
+@group(0) @binding(4) var<storage, read> proj: array<Proj>;
+@group(0) @binding(5) var<storage, read_write> acc: array<atomic<u32>>;
+@group(0) @binding(6) var<storage, read> lut: array<u32>;
+@group(0) @binding(7) var<storage, read_write> frame: array<u32>;
 
 fn index(id: vec3<u32>, groups: vec3<u32>) -> u32 {
     return id.x + id.y * groups.x * 256u;
-}
-
-// Headroom of point p divided by how much the certificate over-counts its light.
-fn headroom(p: u32) -> vec3<f32> {
-    var rho = 0.0;
-    for (var k = 0u; k < prm.kn; k++) {
-        let e = pk[p * prm.kn + k];
-        let w = weights[p * prm.kn + k];
-        if (w > 0.0 && e.eta > 0.0) {
-            rho += w * e.cert_lux / e.eta;
-        }
-    }
-    return max(pts[p].h.xyz, vec3<f32>(0.0)) / max(rho, 1.0);
-}
-
-@compute @workgroup_size(256)
-fn weights_caps(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) groups: vec3<u32>) {
-    let p = index(id, groups);
-    if (p >= prm.points) {
-        return;
-    }
-    let kn = prm.kn;
-    var lmax = 0.0;
-    for (var k = 0u; k < kn; k++) {
-        lmax = max(lmax, pk[p * kn + k].l);
-    }
-    // Weights (Eq. 12); ties of m = infinity share, as on the CPU.
-    var count = 0.0;
-    var sum = 0.0;
-    for (var k = 0u; k < kn; k++) {
-        let l = pk[p * kn + k].l;
-        var w = 0.0;
-        if (lmax > 0.0 && l > 0.0) {
-            if (prm.m_inf != 0u) {
-                if (l >= lmax * (1.0 - 1e-6)) {
-                    w = 1.0;
-                }
-            } else {
-                w = pow(l / lmax, prm.m);
-            }
-        }
-        weights[p * kn + k] = w;
-        sum += w;
-    }
-    for (var k = 0u; k < kn; k++) {
-        if (sum > 0.0) {
-            weights[p * kn + k] = weights[p * kn + k] / sum;
-        }
-    }
-    // The largest scale this point takes under the bound and under saturation.
-    let pt = pts[p];
-    let b = headroom(p);
-    var bound = BIG;
-    var sat = BIG;
-    for (var c = 0u; c < 3u; c++) {
-        let tc = max(pt.t[c], 0.0);
-        if (tc <= 0.0) {
-            continue;
-        }
-        bound = min(bound, (b[c] * pt.g[c] + pt.a[c]) / tc);
-        for (var k = 0u; k < kn; k++) {
-            let w = weights[p * kn + k];
-            if (w > 0.0) {
-                sat = min(sat, (pk[p * kn + k].eta * pt.g[c] / w + pt.a[c]) / tc);
-            }
-        }
-    }
-    caps[p] = vec2<f32>(bound, sat);
 }
 
 @compute @workgroup_size(256)
@@ -136,26 +55,7 @@ fn splat(@builtin(global_invocation_id) id: vec3<u32>, @builtin(num_workgroups) 
         return;
     }
     let kn = prm.kn;
-    let pt = pts[p];
-    let b = headroom(p);
-    // Demand above black (lux per channel), dimmed locally where the bound or a projector's
-    // output cannot give it.
-    var d = max((prm.scale * max(pt.t.xyz, vec3<f32>(0.0)) - pt.a.xyz) / pt.g.xyz, vec3<f32>(0.0));
-    var f = 1.0;
-    for (var c = 0u; c < 3u; c++) {
-        if (d[c] > 0.0) {
-            f = min(f, b[c] / d[c]);
-            for (var k = 0u; k < kn; k++) {
-                let w = weights[p * kn + k];
-                if (w > 0.0) {
-                    f = min(f, pk[p * kn + k].eta / (w * d[c]));
-                }
-            }
-        }
-    }
-    if (f < 1.0) {
-        d = d * max(f, 0.0);
-    }
+    let d = dem[p].xyz;
     let k = prm.k_cur;
     let e = pk[p * kn + k];
     if (e.eta <= 0.0) {
