@@ -10,9 +10,10 @@
 //! The global scale `s` is the largest that keeps every point under the bound (black level
 //! included, fix 2) and every projector unsaturated (fix 1) — except for a user-chosen small
 //! fraction of points (`clip_fraction`), which get the view nearest their target that they
-//! can ([`gamut`]) instead of darkening the whole object. Outputs of the points falling on one projector pixel are averaged (tent
-//! splatting over each camera pixel's footprint), pixels lighting no object point stay black, and outputs go through
-//! the inverse responses to 8-bit values.
+//! can ([`gamut`]) instead of darkening the whole object. Outputs of the points falling on
+//! one projector pixel are averaged (tent splatting over each camera pixel's footprint),
+//! pixels lighting no object point stay black, and outputs go through the inverse responses
+//! to 8-bit values.
 
 pub mod certificate;
 pub mod footprint;
