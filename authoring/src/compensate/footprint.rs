@@ -8,8 +8,9 @@
 //! rounds of projected Landweber iteration that keep every output within `0..=1`.
 //!
 //! The demand is the formula's (scale, nearest view out of reach, headroom under the
-//! bound), so the refined frames aim at the same light. Sharper frames have brighter peaks, and the light
-//! certificate charges every point with the brightest pixel that can reach it; so each
+//! bound), so the refined frames aim at the same light. Sharper frames have brighter peaks,
+//! and the light certificate charges every point with the brightest pixel that can reach it;
+//! so each
 //! pixel is held under a cap that keeps every certificate point whose block holds it within
 //! the limit (`caps`), and the refinement never leaves the guarantee more to dim than the
 //! formula did. The guarantee is still enforced on the result as on any frames: the bound
