@@ -33,7 +33,11 @@ pub fn nearest_view(target: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> [f64; 3] {
     if (0..3).all(|c| (lo[c]..=hi[c]).contains(&t[c])) {
         return t;
     }
-    let lit: Vec<usize> = (0..3).filter(|&c| t[c] > 0.0).collect();
+    let (mut lit, mut n_lit) = ([0usize; 3], 0);
+    for c in (0..3).filter(|&c| t[c] > 0.0) {
+        (lit[n_lit], n_lit) = (c, n_lit + 1);
+    }
+    let lit = &lit[..n_lit];
     if lit.is_empty() {
         return clamp(1.0);
     }
@@ -62,8 +66,12 @@ pub fn nearest_view(target: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> [f64; 3] {
     xs.sort_by(f64::total_cmp);
     let mut best = (1.0, f64::INFINITY);
     let mut at = 0;
+    // Kinks outside the span land on its ends, so equal samples are common: each is
+    // evaluated once.
+    let mut last = (f64::NAN, f64::INFINITY);
     for (j, &x) in xs.iter().enumerate() {
-        let e = error(lam_at(x));
+        let e = if x == last.0 { last.1 } else { error(lam_at(x)) };
+        last = (x, e);
         if e < best.1 {
             (best, at) = ((lam_at(x), e), j);
         }
