@@ -232,6 +232,18 @@ pub fn chip_regions(chipped: &[bool], object: &[bool], width: usize) -> (Vec<usi
     (chips, ring)
 }
 
+/// The ring's pixels split into those with a 4-neighbour in a chip and the rest.
+pub fn ring_by_distance(chipped: &[bool], ring: &[usize], width: usize) -> (Vec<usize>, Vec<usize>) {
+    let n = chipped.len();
+    let beside = |i: usize| {
+        (!i.is_multiple_of(width) && chipped[i - 1])
+            || (i % width + 1 < width && chipped[i + 1])
+            || (i >= width && chipped[i - width])
+            || (i + width < n && chipped[i + width])
+    };
+    ring.iter().partition(|&&i| beside(i))
+}
+
 /// Highest true irradiance (lux, max channel, room light included) at the camera's pixels on
 /// the object (the surface the camera does not see is not counted: see
 /// [`TruePhysics::surface_peak_lux`]).
@@ -366,6 +378,15 @@ pub fn visitor_view(
         let (chips, ring) = chip_regions(&chipped, &object, target.width as usize);
         let (chip_de, chip_bright) = region_error(&comp, &view, target, &chips);
         let (ring_de, ring_bright) = region_error(&comp, &view, target, &ring);
+        // The ring's first pixel (a 4-neighbour in a chip) may straddle the chip's edge in the
+        // camera, its albedo part clay: it can miss like the chip, whatever the blur.
+        let (beside, beyond) = ring_by_distance(&chipped, &ring, target.width as usize);
+        let (beside_de, _) = region_error(&comp, &view, target, &beside);
+        let (beyond_de, _) = region_error(&comp, &view, target, &beyond);
+        rows.extend([
+            Metric::info(STEP, &name("CIEDE2000 mean in the ring's pixels beside a chip"), beside_de, "dE00"),
+            Metric::info(STEP, &name("CIEDE2000 mean in the ring's pixels beyond them"), beyond_de, "dE00"),
+        ]);
         rows.extend([
             Metric::info(STEP, &name("chip pixels"), chips.len() as f64, "px"),
             Metric::info(STEP, &name("CIEDE2000 mean in chips"), chip_de, "dE00"),
@@ -653,10 +674,14 @@ mod tests {
         assert_eq!(chips, vec![3 * w + 4]);
         // The disc of radius 2 holds 13 pixel centres: less the chip and the pixel off the object.
         assert_eq!(ring.len(), 11, "{ring:?}");
-        for i in ring {
+        for &i in &ring {
             let (dx, dy) = ((i % w) as i64 - 4, (i / w) as i64 - 3);
             assert!(dx * dx + dy * dy <= 4 && object[i] && !chipped[i]);
         }
+        // Beside the chip: its four 4-neighbours; the other seven lie beyond them.
+        let (beside, beyond) = ring_by_distance(&chipped, &ring, w);
+        assert_eq!(beside, vec![2 * w + 4, 3 * w + 3, 3 * w + 5, 4 * w + 4]);
+        assert_eq!(beyond.len(), 7, "{beyond:?}");
         // A chip on the border: the ring stays inside the image.
         let mut corner = vec![false; w * h];
         corner[0] = true;
