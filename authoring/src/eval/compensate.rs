@@ -378,14 +378,17 @@ pub fn visitor_view(
         let (chips, ring) = chip_regions(&chipped, &object, target.width as usize);
         let (chip_de, chip_bright) = region_error(&comp, &view, target, &chips);
         let (ring_de, ring_bright) = region_error(&comp, &view, target, &ring);
-        // The ring's first pixel (a 4-neighbour in a chip) may straddle the chip's edge in the
-        // camera, its albedo part clay: it can miss like the chip, whatever the blur.
+        // The ring's pixels beside a chip (a 4-neighbour chipped) take the most of the light
+        // spilled from it, and may hold some of its clay (a camera pixel counts as chipped
+        // where most of its area is).
         let (beside, beyond) = ring_by_distance(&chipped, &ring, target.width as usize);
-        let (beside_de, _) = region_error(&comp, &view, target, &beside);
-        let (beyond_de, _) = region_error(&comp, &view, target, &beyond);
+        let (beside_de, beside_bright) = region_error(&comp, &view, target, &beside);
+        let (beyond_de, beyond_bright) = region_error(&comp, &view, target, &beyond);
         rows.extend([
             Metric::info(STEP, &name("CIEDE2000 mean in the ring's pixels beside a chip"), beside_de, "dE00"),
+            Metric::info(STEP, &name("luminance there over the target's"), 100.0 * beside_bright, "%"),
             Metric::info(STEP, &name("CIEDE2000 mean in the ring's pixels beyond them"), beyond_de, "dE00"),
+            Metric::info(STEP, &name("luminance beyond them over the target's"), 100.0 * beyond_bright, "%"),
         ]);
         rows.extend([
             Metric::info(STEP, &name("chip pixels"), chips.len() as f64, "px"),
