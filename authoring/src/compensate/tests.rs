@@ -94,19 +94,23 @@ fn view_error(s: &SyntheticStage, c: &Compensation, t: &LinearImage) -> f64 {
     sum / count as f64
 }
 
-#[test]
-fn footprint_refinement_undoes_the_blur_the_formula_leaves() {
-    // A blurred stage (tent of radius 2 projector pixels, measured as transport) and a target
-    // with sharp dark and bright squares, as chips in paint are.
-    let spec = SyntheticSpec {
+/// A blurred stage (tent of radius 2 projector pixels, measured as transport) of one uniform
+/// albedo, 64x48, two projectors.
+fn blurred_stage() -> SyntheticStage {
+    build(&SyntheticSpec {
         lux_error: 0.0,
         camera: (64, 48),
         projector: (64, 48),
         blur: 2.0,
         painted: false,
         ..SyntheticSpec::small(2, 6)
-    };
-    let s = build(&spec);
+    })
+}
+
+#[test]
+fn footprint_refinement_undoes_the_blur_the_formula_leaves() {
+    // A target with sharp dark and bright squares, as chips in paint are.
+    let s = blurred_stage();
     let mut t = target(&s, 1);
     for (i, v) in t.data.iter_mut().enumerate() {
         let (x, y) = (i % 64, i / 64);
@@ -144,15 +148,7 @@ fn footprint_refinement_undoes_the_blur_the_formula_leaves() {
 /// does not buy its last few percent of light with a halo on the pixels beside it.
 #[test]
 fn footprint_refinement_keeps_a_chip_from_haloing_its_neighbours() {
-    let spec = SyntheticSpec {
-        lux_error: 0.0,
-        camera: (64, 48),
-        projector: (64, 48),
-        blur: 2.0,
-        painted: false,
-        ..SyntheticSpec::small(2, 6)
-    };
-    let mut s = build(&spec);
+    let mut s = blurred_stage();
     let t = target(&s, 1);
     let chip = |i: usize| (26..38).contains(&(i % 64)) && (18..30).contains(&(i / 64));
     for i in (0..64 * 48).filter(|&i| chip(i)) {
