@@ -6,9 +6,9 @@
 //! rim (a bright halo) and the chip stays dim. Here the modelled light of the frames is
 //! compared with the demand and the difference sent back through the footprints, a few
 //! rounds of projected Landweber iteration that keep every output within `0..=1`, each
-//! point's shortfall weighed as the camera sees it (times its gain, squared), so that a
-//! chip's bare clay, which needs far more light than the paint beside it, does not buy its
-//! last few percent with a halo on its neighbours.
+//! point's shortfall weighed as the eye sees it (times its gain, over the light it shows to
+//! the 2/3), so that a chip's bare clay, which needs far more light than the paint beside it,
+//! does not buy its last few percent with a halo on its neighbours.
 //!
 //! The demand is the formula's (scale, nearest view out of reach, headroom under the
 //! bound), so the refined frames aim at the same light. Sharper frames have brighter peaks,
@@ -34,6 +34,10 @@ pub const DEFAULT_ROUNDS: u32 = 8;
 
 /// Over-relaxation of each round's correction.
 const RELAX: f32 = 1.5;
+
+/// The least light seen (camera units, 1 = full scale) a point's weight is taken at, so that
+/// a point asking for none does not take all the weight.
+const DARKEST_SEEN: f32 = 1e-4;
 
 /// What a refinement did, for the report and the log.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -260,6 +264,22 @@ pub fn refine(stage: &StageModel, prep: &Prepared, params: &Params, draft: &mut 
     }
     let mut res = residual(&out);
     let before = mismatch(&res);
+    // How much each point's shortfall counts, per channel: as the eye sees it. Times the gain
+    // it is what the camera sees (in light alone, a chip's bare clay, which asks for far more
+    // light than the paint beside it, outweighed the halo its light spills there); and
+    // lightness (CIELAB's L*) goes as the cube root of the light seen, so a step in it weighs
+    // as that light to the -2/3 (the dark paint under the black level needs its share too).
+    // Squared, as the shortfall is.
+    let weigh: Vec<[f32; 3]> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            std::array::from_fn(|c| {
+                let g = stage.gain[i][c];
+                let seen = (stage.ambient[i][c] + g * want[i][c].max(0.0)).max(DARKEST_SEEN);
+                g * g * seen.powf(-4.0 / 3.0)
+            })
+        })
+        .collect();
     for _ in 0..params.footprint_rounds {
         // Each projector takes its Eq. 12 share of every point's shortfall, in its own output
         // units, averaged over its pixel's footprint on the worked points.
@@ -278,12 +298,8 @@ pub fn refine(stage: &StageModel, prep: &Prepared, params: &Params, draft: &mut 
                     }
                     let w = t.weight[e] / cols[k].sum[i];
                     let share = draft.weights[i * kn + k] / eta;
-                    // The shortfall weighed as the camera sees it (times the gain, squared):
-                    // in light alone, a chip's bare clay (low gain) asks for so much more
-                    // light than the paint beside it that its deficit outweighed the halo
-                    // its light spills there.
                     (0..3).for_each(|c| {
-                        let v = stage.gain[i][c] * stage.gain[i][c];
+                        let v = weigh[i][c];
                         num[c] += w * v * share * res[i][c];
                         den[c] += w * v;
                     });
