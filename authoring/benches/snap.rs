@@ -3,7 +3,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use restage_authoring::calibrate::transport::{
-    DotSignal, Predictor, SnapContext, SnapParams, snap_blob, snap_dot_image,
+    DotSignal, Neighbourhood, Predictor, SnapContext, SnapParams, snap_blob, snap_dot_image,
 };
 use restage_authoring::imgio::LinearImage;
 
@@ -52,8 +52,14 @@ fn bench(c: &mut Criterion) {
         b.iter(|| snap_dot_image(&img, &ctx, &pred, SPACING, (3, 5), &SnapParams::default()))
     });
     g.throughput(Throughput::Elements(1));
-    let guess = cam_of(3 + 16 * 40, 5 + 16 * 30);
-    g.bench_function("one blob", |b| b.iter(|| snap_blob(&img, &ctx, guess, 8, 0.01, 0.003)));
+    let (qx, qy) = (3 + SPACING * 40, 5 + SPACING * 30);
+    let guess = cam_of(qx, qy);
+    let s = SPACING as i64;
+    let rivals = [(s, 0), (-s, 0), (0, s), (0, -s), (s, s), (-s, -s), (s, -s), (-s, s)]
+        .map(|(ox, oy)| cam_of((qx as i64 + ox) as u32, (qy as i64 + oy) as u32))
+        .to_vec();
+    let around = Neighbourhood { rivals, reach: 13 };
+    g.bench_function("one blob", |b| b.iter(|| snap_blob(&img, &ctx, guess, 8, &around, 0.01, 0.003)));
     g.finish();
 }
 

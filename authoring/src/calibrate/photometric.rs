@@ -154,8 +154,13 @@ pub fn measure_transport(
             Ok((file.display().to_string(), r))
         })
         .collect::<Result<Vec<_>, ImageError>>()?;
-    let result = transport::assemble(k, capture.width, capture.height, spacing, images)?;
-    // Dots cut by the silhouette or a shadow have centres pulled inwards: not used to refine.
+    let mut result = transport::assemble(k, capture.width, capture.height, spacing, images)?;
+    let filled = transport::fill_missing(&mut result, &ctx, capture.width, capture.height);
+    if filled > 0 {
+        info!("projector {k}: {filled} footprints of dots not found filled from the dots around them");
+    }
+    // Dots cut by the silhouette, a shadow or a neighbour's cell have centres pulled off the
+    // pixel's: not used to refine.
     let whole: Vec<transport::Dot> = result.dots.iter().filter(|d| !d.clipped).copied().collect();
     let (refined, stats) =
         transport::refine_correspondences(correspondence, cam_w, cam_h, &whole, params.max_refine_shift);
@@ -246,11 +251,12 @@ pub fn calibrate_photometry(
         let (res, refined, stats) =
             measure_transport(dir, k, cap, size, &model.correspondences[k], params, progress)?;
         info!(
-            "projector {k}: {} dots snapped of {} predicted ({} off the object); {} camera pixels refined, \
-             median shift {:.3} px",
+            "projector {k}: {} dots snapped of {} predicted ({} off the object, {} sharing light with a \
+             neighbour); {} camera pixels refined, median shift {:.3} px",
             res.dots.len(),
             res.images.iter().map(|(_, r)| r.predicted()).sum::<usize>(),
             res.images.iter().map(|(_, r)| r.off_object).sum::<usize>(),
+            res.images.iter().map(|(_, r)| r.shared).sum::<usize>(),
             stats.refined,
             stats.median_shift
         );

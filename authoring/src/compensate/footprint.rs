@@ -52,8 +52,8 @@ pub struct Refinement {
 }
 
 /// A camera pixel's measured shares from one projector must add up to at least this for its
-/// footprint to count as measured (the transport step misses dots it finds merged or smeared,
-/// at grazing angles); below it the formula's own assumption stands there — the pixel gets
+/// footprint to count as measured (the transport step misses dots smeared at grazing angles
+/// and dots it cannot fill); below it the formula's own assumption stands there — the pixel gets
 /// the output at its correspondence — and the refinement leaves that projector's share alone.
 pub const MIN_MEASURED_SHARE: f32 = 0.5;
 
