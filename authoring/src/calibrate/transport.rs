@@ -1215,16 +1215,27 @@ mod tests {
         let params = SnapParams::default();
         let ctx = SnapContext::new(&black, &white, synth.noise, &params);
         let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
+        (snap_all(synth, &ctx, &pred, &params, spacing, &mut rng), corr)
+    }
+
+    /// Renders and snaps every dot image of `synth` at `spacing`, and assembles them.
+    fn snap_all(
+        synth: &Synth,
+        ctx: &SnapContext,
+        pred: &Predictor,
+        params: &SnapParams,
+        spacing: u32,
+        rng: &mut ChaCha8Rng,
+    ) -> TransportResult {
         let mut images = Vec::new();
         for dy in 0..spacing {
             for dx in 0..spacing {
-                let img = synth.render(|x, y| x % spacing == dx && y % spacing == dy, &mut rng, 0.5);
-                let r =
-                    snap_dot_image(&DotSignal::from_linear(&img), &ctx, &pred, spacing, (dx, dy), &params);
+                let img = synth.render(|x, y| x % spacing == dx && y % spacing == dy, rng, 0.5);
+                let r = snap_dot_image(&DotSignal::from_linear(&img), ctx, pred, spacing, (dx, dy), params);
                 images.push((format!("dots_{dx}_{dy}.png"), r));
             }
         }
-        (assemble(0, synth.proj_w, synth.proj_h, spacing, images).unwrap(), corr)
+        assemble(0, synth.proj_w, synth.proj_h, spacing, images).unwrap()
     }
 
     /// The black and white references at `level`, exact correspondences and their predictor.
@@ -1414,16 +1425,8 @@ mod tests {
             }
         }
         let pred = Predictor::new(&corr, synth.cam_w, synth.proj_w, synth.proj_h);
-        let mut images = Vec::new();
-        for dy in 0..spacing {
-            for dx in 0..spacing {
-                let img = synth.render(|x, y| x % spacing == dx && y % spacing == dy, &mut rng, 0.5);
-                let r =
-                    snap_dot_image(&DotSignal::from_linear(&img), &ctx, &pred, spacing, (dx, dy), &params);
-                images.push((format!("dots_{dx}_{dy}.png"), r));
-            }
-        }
-        (assemble(0, synth.proj_w, synth.proj_h, spacing, images).unwrap(), ctx)
+        let res = snap_all(synth, &ctx, &pred, &params, spacing, &mut rng);
+        (res, ctx)
     }
 
     /// Per camera pixel, the sum of its shares over the projector pixels `t` measured.
