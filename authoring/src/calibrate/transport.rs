@@ -269,7 +269,8 @@ pub struct Neighbourhood {
 /// neighbouring dots' predicted positions (its cell: where neighbouring blobs touch, each
 /// takes the light on its own side). Finds the brightest pixel of its cell within `radius`,
 /// climbs to the blob's top, grows the connected region above `member` around it over the
-/// cell within `around.reach` of `guess`, and returns its weighted centre and footprint. `detect` is the smallest accepted peak (channel sum above black).
+/// cell within `around.reach` of `guess`, and returns its weighted centre and footprint.
+/// `detect` is the smallest accepted peak (channel sum above black).
 pub fn snap_blob(
     image: &DotSignal,
     ctx: &SnapContext,
@@ -948,12 +949,13 @@ pub fn fill_missing(
             centre[q] = Some(d.camera);
         }
     }
-    fill_round(&mut result.transport, &centre, ctx, proj_width, proj_height)
+    fill_from(&mut result.transport, &centre, ctx, proj_width, proj_height)
 }
 
-/// [`fill_missing`] from the measured footprints and their dots' centres (filling again from
-/// the filled ones, in rounds, closed larger chips but made the view worse: docs/calibrate.md).
-fn fill_round(
+/// [`fill_missing`] from the measured footprints and their dots' centres, in one pass (filling
+/// again from the filled ones, in rounds, closed larger chips but made the view worse:
+/// docs/calibrate.md).
+fn fill_from(
     t: &mut Transport,
     centre: &[Option<[f32; 2]>],
     ctx: &SnapContext,
