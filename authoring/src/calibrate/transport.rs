@@ -999,7 +999,12 @@ fn fill_from(
                     rhs[1][a] += v[a] * c[1] as f64;
                 }
             }
-            let fit = [solve3(m, rhs[0])?, solve3(m, rhs[1])?];
+            let m = nalgebra::Matrix3::from_fn(|r, c| m[r][c]);
+            if m.determinant().abs() < 1e-9 {
+                return None;
+            }
+            let inv = m.try_inverse()?;
+            let fit = [inv * nalgebra::Vector3::from(rhs[0]), inv * nalgebra::Vector3::from(rhs[1])];
             let (o, _, j) =
                 near.iter().min_by(|a, b| (a.0[0].hypot(a.0[1])).total_cmp(&b.0[0].hypot(b.0[1])))?;
             // The template's offset from this pixel, as the fit has it.
@@ -1059,24 +1064,6 @@ fn fill_from(
     }
     *t = next;
     filled.len()
-}
-
-/// Solves the 3x3 system `m x = b` (Cramer's rule); `None` when it is near singular.
-fn solve3(m: [[f64; 3]; 3], b: [f64; 3]) -> Option<[f64; 3]> {
-    let det = |m: &[[f64; 3]; 3]| {
-        m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-            + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0])
-    };
-    let d = det(&m);
-    if d.abs() < 1e-9 {
-        return None;
-    }
-    let col = |c: usize| {
-        let mut a = m;
-        (0..3).for_each(|r| a[r][c] = b[r]);
-        det(&a) / d
-    };
-    Some([col(0), col(1), col(2)])
 }
 
 /// Per projector pixel footprint energy (sum of weights, camera pixels' worth of light);
