@@ -8,8 +8,10 @@
 //!
 //! Each connected region (4-neighbours, one class) is compared with each neighbouring region
 //! of another class across their shared border: the colour step from one pixel inside to one
-//! pixel outside (skipping past the border pixels themselves, which may be mixed) relative to
-//! the contrast between the two classes' colours. Where the median step is a small share of
+//! pixel outside (skipping past the border pixels themselves, which may be mixed), less the
+//! change the colour goes on making over as many pixels beyond it where it does so on both
+//! sides (a stain's gradient runs on past where the line between two close classes cuts it, a
+//! brush edge stops), relative to the contrast between the two classes' colours. Where the median step is a small share of
 //! the contrast the border is soft, and one region takes the other's class. Mixed pixels do
 //! not decide it: the per-pixel rule gives a row of them along a band's edge whatever class
 //! lies between the two colours mixed, and the row joins a faded patch of that class it
@@ -251,7 +253,26 @@ pub fn regions(
             let outer = Some(j + d)
                 .filter(|&q| q < n && (d == w || (j + 1) % w != 0) && of_pixel[q] == of_pixel[j])
                 .unwrap_or(j);
-            let step = (relative(px(inner), px(outer)) / contrast) as f32;
+            // Less what the colour goes on changing beyond the border over as many pixels,
+            // where it does on both sides: a stain's gradient runs on past where the line
+            // between two close classes cuts it, a brush edge stops.
+            let beyond = |from: usize, p: usize, back: bool| {
+                let mut q = p;
+                for _ in 0..3 {
+                    q = if back {
+                        q.checked_sub(d).filter(|&r| d == w || r % w + 1 != w)?
+                    } else {
+                        Some(q + d).filter(|&r| r < n && (d == w || r % w != 0))?
+                    };
+                }
+                (of_pixel[q] == of_pixel[from]).then(|| relative(px(q), px(p)))
+            };
+            let run_on = if inner != i && outer != j {
+                beyond(i, inner, true).zip(beyond(j, outer, false)).map_or(0.0, |(a, b)| a.min(b))
+            } else {
+                0.0
+            };
+            let step = ((relative(px(inner), px(outer)) - run_on).max(0.0) / contrast) as f32;
             // A pixel beside a third label (another class, or off the object) may mix that
             // colour in: a row of mixed pixels along a band's edge makes steps to the band
             // that say nothing of how the two regions meet.
@@ -721,6 +742,49 @@ mod tests {
         assert!(
             (0..w * h).filter(|&i| stripe(i % w, i / w) == 1.0).all(|i| labels[i] == 0),
             "the stripe keeps its class"
+        );
+    }
+
+    /// Red paint under a stain whose gradient is steep (as on the bowl's rim at seed 21): the
+    /// colour runs from the red towards a brown over 20 px, and the middle of the ramp, nearer
+    /// the clay, is a stripe that the per-pixel rule gives the clay (a loss class). Each
+    /// three-pixel step across the stripe's edges is over a quarter of the close red-clay
+    /// contrast, but the colour goes on changing as fast beyond them on both sides, so the
+    /// edges are soft and the stripe is red; a chip's edge, flat on its inside, stays sharp.
+    #[test]
+    fn a_steep_stain_through_a_close_class_joins_its_paint_and_a_chip_keeps_its_edge() {
+        const RED: [f64; 3] = [0.50, 0.10, 0.08];
+        const CLAY: [f64; 3] = [0.40, 0.16, 0.10];
+        const STAINED: [f64; 3] = [0.30, 0.22, 0.12];
+        let (w, h) = (100usize, 40usize);
+        let ramp = |x: usize| ((x as f64 - 40.0) / 20.0).clamp(0.0, 1.0);
+        let chip = |x: usize, y: usize| (x as f64 - 15.0).hypot(y as f64 - 20.0) < 6.0;
+        let mut photo = LinearImage::new(w as u32, h as u32).unwrap();
+        let mut labels = vec![0u8; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let f = ramp(x);
+                let colour =
+                    if chip(x, y) { CLAY } else { [0, 1, 2].map(|j| RED[j] + f * (STAINED[j] - RED[j])) };
+                let t = 1.0 + 0.01 * (((x * 7 + y * 13) % 5) as f64 - 2.0);
+                photo.data[i] = colour.map(|v| (v * t) as f32);
+                labels[i] = u8::from(chip(x, y) || (0.35..0.65).contains(&f));
+            }
+        }
+        // The premise: the steps across the stripe's edges are sharp by the median alone.
+        let contrast = relative(RED, CLAY);
+        let across = relative(photo.data[46 + 20 * w].map(f64::from), photo.data[49 + 20 * w].map(f64::from));
+        assert!(across > f64::from(SOFT_STEP) * contrast, "{across} against {contrast}");
+        let stripe: Vec<usize> = (0..w * h).filter(|&i| !chip(i % w, i / w) && labels[i] == 1).collect();
+        let picks = vec![vec![5 + 5 * w], vec![15 + 20 * w]];
+        let typical = vec![false; w * h];
+        merge_soft_regions(&photo, &mut labels, 2, &[RED, CLAY], &picks, &typical, &[1]);
+        let still = stripe.iter().filter(|&&i| labels[i] == 1).count();
+        assert_eq!(still, 0, "{still} of {} stained pixels stay clay", stripe.len());
+        assert!(
+            (0..w * h).filter(|&i| chip(i % w, i / w)).all(|i| labels[i] == 1),
+            "the chip keeps its class"
         );
     }
 }
