@@ -58,8 +58,8 @@ fn bench(c: &mut Criterion) {
     let rivals = [(s, 0), (-s, 0), (0, s), (0, -s), (s, s), (-s, -s), (s, -s), (-s, s)]
         .map(|(ox, oy)| cam_of((qx as i64 + ox) as u32, (qy as i64 + oy) as u32))
         .to_vec();
-    let around = Neighbourhood { rivals, reach: 13 };
-    g.bench_function("one blob", |b| b.iter(|| snap_blob(&img, &ctx, guess, 8, &around, 0.01, 0.003)));
+    let around = Neighbourhood::new(guess, rivals, SPACING, SnapParams::default().max_radius);
+    g.bench_function("one blob", |b| b.iter(|| snap_blob(&img, &ctx, guess, &around, 0.01, 0.003)));
     g.finish();
 }
 

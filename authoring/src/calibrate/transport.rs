@@ -259,15 +259,42 @@ pub fn noise_sigma(image: &DotSignal, ctx: &SnapContext) -> f32 {
 pub struct Neighbourhood {
     /// Camera positions of the (up to eight) neighbouring dots the correspondences predict.
     pub rivals: Vec<[f32; 2]>,
+    /// Half the camera distance to the nearest neighbour (infinite when none is predicted):
+    /// a blob centred further than this from the dot's predicted position is nearer a
+    /// neighbour's.
+    pub halfway: f32,
+    /// Radius of the window the peak is sought in: `halfway` rounded down, so that
+    /// neighbouring dots' windows do not overlap (half the dot spacing where no neighbour is
+    /// predicted), within `2..=max_radius`.
+    pub radius: u32,
     /// Camera pixels a blob may reach from the dot's predicted position (Chebyshev): half the
     /// distance to its furthest predicted neighbour, rounded up; beyond that the light is
     /// some other dot's, or a smear.
     pub reach: u32,
 }
 
+impl Neighbourhood {
+    /// The neighbourhood of a dot predicted at `here` whose neighbours are predicted at
+    /// `rivals`, in a dot image of `spacing`.
+    pub fn new(here: [f32; 2], rivals: Vec<[f32; 2]>, spacing: u32, max_radius: u32) -> Self {
+        let (nearest, furthest) = rivals
+            .iter()
+            .map(|p| (p[0] - here[0]).hypot(p[1] - here[1]))
+            .fold((f32::INFINITY, 0.0f32), |(n, f), d| (n.min(d), f.max(d)));
+        let radius = if nearest.is_finite() { (nearest * 0.5).floor() as u32 } else { spacing / 2 }
+            .clamp(2, max_radius);
+        Neighbourhood {
+            halfway: nearest * 0.5,
+            radius,
+            reach: ((0.5 * furthest).ceil() as u32).min(max_radius),
+            rivals,
+        }
+    }
+}
+
 /// Snaps to the blob nearest `guess`. A dot owns the pixels nearer `guess` than any of the
 /// neighbouring dots' predicted positions (its cell: where neighbouring blobs touch, each
-/// takes the light on its own side). Finds the brightest pixel of its cell within `radius`,
+/// takes the light on its own side). Finds the brightest pixel of its cell within `around.radius`,
 /// climbs to the blob's top, grows the connected region above `member` around it over the
 /// cell within `around.reach` of `guess`, and returns its weighted centre and footprint.
 /// `detect` is the smallest accepted peak (channel sum above black).
@@ -275,13 +302,12 @@ pub fn snap_blob(
     image: &DotSignal,
     ctx: &SnapContext,
     guess: [f32; 2],
-    radius: u32,
     around: &Neighbourhood,
     detect: f32,
     member: f32,
 ) -> Result<Blob, SnapMiss> {
     let (w, h) = (ctx.width as i64, ctx.height as i64);
-    let r = radius as i64;
+    let r = around.radius as i64;
     let signal = |x: i64, y: i64| -> f32 {
         let i = (y * w + x) as usize;
         image.sum[i] - ctx.black[i]
@@ -434,19 +460,6 @@ impl DotImageResult {
     }
 }
 
-/// Search radius for a dot: half the camera distance to the nearest of the eight neighbouring
-/// dots of the same image, so that neighbouring blobs never share a window; and that half
-/// distance itself (not rounded or clamped; infinite when no neighbour is predicted), beyond
-/// which a blob's centre is nearer a neighbour than this dot.
-fn search_radius(around: &Neighbourhood, here: [f32; 2], spacing: u32, max_radius: u32) -> (u32, f32) {
-    let nearest =
-        around.rivals.iter().map(|p| (p[0] - here[0]).hypot(p[1] - here[1])).fold(f32::INFINITY, f32::min);
-    if !nearest.is_finite() {
-        return ((spacing / 2).clamp(2, max_radius), f32::INFINITY);
-    }
-    (((nearest * 0.5).floor() as u32).clamp(2, max_radius), nearest * 0.5)
-}
-
 /// The predicted neighbours of dot (qx, qy) at `here`: the eight dots `spacing` away along
 /// the axes and diagonals (where the projector's image is sheared in the camera's, a diagonal
 /// neighbour can land nearer than the four along the axes).
@@ -469,8 +482,7 @@ fn neighbourhood(
             pred.predict(nx as u32, ny as u32)
         })
         .collect();
-    let furthest = rivals.iter().map(|p| (p[0] - here[0]).hypot(p[1] - here[1])).fold(0.0f32, f32::max);
-    Neighbourhood { reach: ((0.5 * furthest).ceil() as u32).min(max_radius), rivals }
+    Neighbourhood::new(here, rivals, spacing, max_radius)
 }
 
 /// Snaps every dot of one dot image (`spacing`, shift `dx`, `dy`).
@@ -494,11 +506,10 @@ pub fn snap_dot_image(
                 continue;
             };
             let around = neighbourhood(pred, qx, qy, guess, spacing, params.max_radius);
-            let (radius, halfway) = search_radius(&around, guess, spacing, params.max_radius);
-            match snap_blob(image, ctx, guess, radius, &around, detect, member) {
+            match snap_blob(image, ctx, guess, &around, detect, member) {
                 // The window reaches halfway to the neighbours (further where the minimum radius
                 // applies), so a dark dot's window can hold a neighbour's bright edge.
-                Ok(blob) if (blob.centre[0] - guess[0]).hypot(blob.centre[1] - guess[1]) > halfway => {
+                Ok(blob) if (blob.centre[0] - guess[0]).hypot(blob.centre[1] - guess[1]) > around.halfway => {
                     out.elsewhere += 1
                 }
                 Ok(blob) => {
@@ -1374,8 +1385,7 @@ mod tests {
         let pred = Predictor::new(&corr, cam_w, proj_w, proj_h);
         let (qx, qy) = (16, 16);
         let here = pred.predict(qx, qy).unwrap();
-        let around = neighbourhood(&pred, qx, qy, here, 8, 24);
-        let (radius, halfway) = search_radius(&around, here, 8, 24);
+        let Neighbourhood { radius, halfway, .. } = neighbourhood(&pred, qx, qy, here, 8, 24);
         let diagonal = pred.predict(qx + 8, qy - 8).unwrap();
         let half_diagonal = 0.5 * (diagonal[0] - here[0]).hypot(diagonal[1] - here[1]);
         assert!(half_diagonal < 2.0, "the set-up: the diagonal neighbour is {half_diagonal} px halfway");
