@@ -294,9 +294,10 @@ impl Neighbourhood {
 
 /// Snaps to the blob nearest `guess`. A dot owns the pixels nearer `guess` than any of the
 /// neighbouring dots' predicted positions (its cell: where neighbouring blobs touch, each
-/// takes the light on its own side). Finds the brightest pixel of its cell within `around.radius`,
-/// climbs to the blob's top, grows the connected region above `member` around it over the
-/// cell within `around.reach` of `guess`, and returns its weighted centre and footprint.
+/// takes the light on its own side). Finds the brightest pixel of its cell within
+/// `around.radius`, climbs to the blob's top, grows the connected region above `member` around
+/// it over the cell within `around.reach` of `guess`, and returns its weighted centre and
+/// footprint.
 /// `detect` is the smallest accepted peak (channel sum above black).
 pub fn snap_blob(
     image: &DotSignal,

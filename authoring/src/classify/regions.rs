@@ -11,8 +11,9 @@
 //! pixel outside (skipping past the border pixels themselves, which may be mixed), less the
 //! change the colour goes on making over as many pixels beyond it where it does so on both
 //! sides (a stain's gradient runs on past where the line between two close classes cuts it, a
-//! brush edge stops), relative to the contrast between the two classes' colours. Where the median step is a small share of
-//! the contrast the border is soft, and one region takes the other's class. Mixed pixels do
+//! brush edge stops), relative to the contrast between the two classes' colours. Where the
+//! median step is a small share of the contrast the border is soft, and one region takes the
+//! other's class. Mixed pixels do
 //! not decide it: the per-pixel rule gives a row of them along a band's edge whatever class
 //! lies between the two colours mixed, and the row joins a faded patch of that class it
 //! touches. So the median is over the pairs with no pixel beside a third label (another

@@ -691,9 +691,9 @@ pub fn compensate_on(
 /// next to it on either side are refined and judged again, and the best of them taken.
 /// Returns it, each judged `[fraction, modelled error of the formula's frames]` in order of
 /// fraction, and the refined ones' `[fraction, modelled error]` in the order they were refined
-/// (the formula's order; empty where the stage has no footprints or no rounds are asked for). Where none can be judged
-/// (no point, no scale: every error infinite) the asked fraction stays; the first of equals
-/// is the smaller fraction.
+/// (the formula's order; empty where the stage has no footprints or no rounds are asked for).
+/// Where none can be judged (no point, no scale: every error infinite) the asked fraction
+/// stays; the first of equals is the smaller fraction.
 fn choose_clip(
     stage: &StageModel,
     prep: &Prepared,
