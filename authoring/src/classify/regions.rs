@@ -13,10 +13,9 @@
 //! sides (a stain's gradient runs on past where the line between two close classes cuts it, a
 //! brush edge stops), relative to the contrast between the two classes' colours. Where the
 //! median step is a small share of the contrast the border is soft, and one region takes the
-//! other's class. Mixed pixels do
-//! not decide it: the per-pixel rule gives a row of them along a band's edge whatever class
-//! lies between the two colours mixed, and the row joins a faded patch of that class it
-//! touches. So the median is over the pairs with no pixel beside a third label (another
+//! other's class. Mixed pixels do not decide it: the per-pixel rule gives a row of them along
+//! a band's edge whatever class lies between the two colours mixed, and the row joins a
+//! faded patch of that class it touches. So the median is over the pairs with no pixel beside a third label (another
 //! class, or off the object) where there are enough of them, and the sizes compared below
 //! leave out pixels one pixel wide in their row or column ([`Region::thick`]):
 //! - a region holding a pick of its own class (the conservator named it) yields only in
