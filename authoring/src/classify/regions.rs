@@ -6,18 +6,18 @@
 //! of the few pixels a conservator picks, so whole faded patches go to the nearest other
 //! colour; chips and cracks, the losses that must keep their class, have sharp edges.
 //!
-//! Each connected region (4-neighbours, one class) is compared with each neighbouring region
-//! of another class across their shared border: the colour step from one pixel inside to one
-//! pixel outside (skipping past the border pixels themselves, which may be mixed), less the
-//! change the colour goes on making over as many pixels beyond it where it does so on both
-//! sides (a stain's gradient runs on past where the line between two close classes cuts it, a
-//! brush edge stops), relative to the contrast between the two classes' colours. Where the
-//! median step is a small share of the contrast the border is soft, and one region takes the
-//! other's class. Mixed pixels do not decide it: the per-pixel rule gives a row of them along
-//! a band's edge whatever class lies between the two colours mixed, and the row joins a
-//! faded patch of that class it touches. So the median is over the pairs with no pixel beside a third label (another
-//! class, or off the object) where there are enough of them, and the sizes compared below
-//! leave out pixels one pixel wide in their row or column ([`Region::thick`]):
+//! Each connected region (4-neighbours, one class) is compared with each neighbouring region of
+//! another class across their shared border: the colour step from one pixel inside to one pixel
+//! outside (skipping past the border pixels themselves, which may be mixed), less the change
+//! the colour goes on making over as many pixels beyond it where it does so on both sides (a
+//! stain's gradient runs on past where the line between two close classes cuts it, a brush edge
+//! stops), relative to the contrast between the two classes' colours. Where the median step is
+//! a small share of the contrast the border is soft, and one region takes the other's class.
+//! Mixed pixels do not decide it: the per-pixel rule gives a row of them along a band's edge
+//! whatever class lies between the two colours mixed, and the row joins a faded patch of that
+//! class it touches. So the median is over the pairs with no pixel beside a third label
+//! (another class, or off the object) where there are enough of them, and the sizes compared
+//! below leave out pixels one pixel wide in their row or column ([`Region::thick`]):
 //! - a region holding a pick of its own class (the conservator named it) yields only in
 //!   part: a watershed on colour steps from its picks and its typical pixels on one side and
 //!   the soft border on the other splits it along its sharpest line (`flood`);
