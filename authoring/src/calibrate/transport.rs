@@ -297,8 +297,7 @@ impl Neighbourhood {
 /// takes the light on its own side). Finds the brightest pixel of its cell within
 /// `around.radius`, climbs to the blob's top, grows the connected region above `member` around
 /// it over the cell within `around.reach` of `guess`, and returns its weighted centre and
-/// footprint.
-/// `detect` is the smallest accepted peak (channel sum above black).
+/// footprint. `detect` is the smallest accepted peak (channel sum above black).
 pub fn snap_blob(
     image: &DotSignal,
     ctx: &SnapContext,

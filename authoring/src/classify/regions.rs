@@ -136,6 +136,14 @@ fn neighbours(i: usize, w: usize, h: usize) -> impl Iterator<Item = usize> {
         .flatten()
 }
 
+/// The pixel `count` pixels from `i` along a row (`d` = 1) or a column (`d` = `w`), back
+/// where `count` is negative, if it lies in the `w` x `h` image (never wrapping round a row).
+fn along(i: usize, d: usize, count: i64, w: usize, h: usize) -> Option<usize> {
+    let (x, y) = ((i % w) as i64, (i / w) as i64);
+    let (x, y) = if d == 1 { (x + count, y) } else { (x, y + count) };
+    (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h).then(|| y as usize * w + x as usize)
+}
+
 /// Pixels one pixel wide in their row or in their column: both neighbours across them have
 /// another label or lie off the image. Mixed pixels along an edge or the silhouette, which the
 /// per-pixel rule gives whichever class lies between the two colours they mix, form such lines.
@@ -248,27 +256,18 @@ pub fn regions(
             }
             // One pixel further in on each side where the region goes on, so that mixed
             // border pixels do not halve a sharp edge's step.
-            let inner =
-                i.checked_sub(d).filter(|&p| (d == w || x > 0) && of_pixel[p] == of_pixel[i]).unwrap_or(i);
-            let outer = Some(j + d)
-                .filter(|&q| q < n && (d == w || (j + 1) % w != 0) && of_pixel[q] == of_pixel[j])
-                .unwrap_or(j);
+            let inner = along(i, d, -1, w, h).filter(|&p| of_pixel[p] == of_pixel[i]).unwrap_or(i);
+            let outer = along(j, d, 1, w, h).filter(|&q| of_pixel[q] == of_pixel[j]).unwrap_or(j);
             // Less what the colour goes on changing beyond the border over as many pixels,
             // where it does on both sides: a stain's gradient runs on past where the line
             // between two close classes cuts it, a brush edge stops.
-            let beyond = |from: usize, p: usize, back: bool| {
-                let mut q = p;
-                for _ in 0..3 {
-                    q = if back {
-                        q.checked_sub(d).filter(|&r| d == w || r % w + 1 != w)?
-                    } else {
-                        Some(q + d).filter(|&r| r < n && (d == w || r % w != 0))?
-                    };
-                }
-                (of_pixel[q] == of_pixel[from]).then(|| relative(px(q), px(p)))
+            let beyond = |from: usize, p: usize, count: i64| {
+                along(p, d, count, w, h)
+                    .filter(|&q| of_pixel[q] == of_pixel[from])
+                    .map(|q| relative(px(q), px(p)))
             };
             let run_on = if inner != i && outer != j {
-                beyond(i, inner, true).zip(beyond(j, outer, false)).map_or(0.0, |(a, b)| a.min(b))
+                beyond(i, inner, -3).zip(beyond(j, outer, 3)).map_or(0.0, |(a, b)| a.min(b))
             } else {
                 0.0
             };
@@ -350,15 +349,11 @@ fn flood(
     // behind i to one beyond j where the region goes on, since a blurred edge spreads its
     // step over two or three pixels.
     let span_step = |i: usize, j: usize| {
-        let (x, y) = ((i % w) as i64, (i / w) as i64);
-        let (dx, dy) = ((j % w) as i64 - x, (j / w) as i64 - y);
-        let at = |x: i64, y: i64| {
-            (x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h)
-                .then(|| y as usize * w + x as usize)
-                .filter(|&k| r.of_pixel[k] == r.of_pixel[i])
-        };
-        let behind = at(x - dx, y - dy).unwrap_or(i);
-        let beyond = at(x + 2 * dx, y + 2 * dy).unwrap_or(j);
+        let (dx, dy) = ((j % w) as i64 - (i % w) as i64, (j / w) as i64 - (i / w) as i64);
+        let (d, sign) = if dy == 0 { (1, dx) } else { (w, dy) };
+        let at = |count: i64| along(i, d, count, w, h).filter(|&k| r.of_pixel[k] == r.of_pixel[i]);
+        let behind = at(-sign).unwrap_or(i);
+        let beyond = at(2 * sign).unwrap_or(j);
         relative(px(behind), px(beyond))
     };
     // Per split region, the least contrast between its class and a class it yields to: a step
