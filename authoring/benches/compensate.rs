@@ -85,11 +85,16 @@ fn bench(c: &mut Criterion) {
         b.iter(|| Prepared::new(&s.model, params.reduction).unwrap())
     });
     // The same stage with measured footprints (blur of radius 1.5 projector pixels): the
-    // formula's frames refined in `footprint_rounds` rounds (the default, 8).
+    // formula's frames refined in `footprint_rounds` rounds (the default, or
+    // `RESTAGE_BENCH_ROUNDS` to time another count).
     let mut with_footprints = s.model.clone();
     with_footprints.transport =
         build(&SyntheticSpec { with_transport: true, ..spec.clone() }).model.transport;
     let prep = Prepared::new(&with_footprints, params.reduction).unwrap();
+    let rounds =
+        std::env::var("RESTAGE_BENCH_ROUNDS").ok().map(|v| v.parse().expect("RESTAGE_BENCH_ROUNDS: a count"));
+    let params = Params { footprint_rounds: rounds.unwrap_or(params.footprint_rounds), ..params };
+    let auto = Params { footprint_rounds: params.footprint_rounds, ..auto };
     g.bench_function(
         format!("3 x 1400x1050 frames from 1600x1200, {} footprint rounds", params.footprint_rounds),
         |b| b.iter(|| compensate_prepared(&with_footprints, &prep, &target, &params).unwrap()),
