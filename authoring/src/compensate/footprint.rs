@@ -29,7 +29,7 @@ use super::{Draft, Params, Prepared};
 use crate::stage_model::StageModel;
 
 /// Rounds of refinement when the user does not say. The mismatch falls fastest in the first
-/// few and then by about 1 % of itself a round: on nine calibrated captures at 150 lx, 16
+/// few and then by 0.4-1.5 % of itself a round: on nine calibrated captures at 150 lx, 16
 /// rounds lowered every mean and p95 against 8 and 32 lowered them a little more, at 0.1 s
 /// a round for three 1400x1050 frames on 2 cores (README, "Compensation").
 pub const DEFAULT_ROUNDS: u32 = 16;
