@@ -60,12 +60,13 @@ pub struct Refinement {
 pub const MIN_MEASURED_SHARE: f32 = 0.5;
 
 /// One projector's transport turned around: per camera pixel, the projector pixels that
-/// reach it and their weights (compressed sparse rows over camera pixels), and the sum of
-/// its shares (0 where none was measured).
+/// reach it and the light each output unit gives it there (its measured share, the shares
+/// made to add up to 1, times the pixel's coefficient `eta`; compressed sparse rows over
+/// camera pixels), and the sum of its measured shares (0 where none was measured).
 struct Columns {
     start: Vec<u32>,
     pixel: Vec<u32>,
-    weight: Vec<f32>,
+    light: Vec<f32>,
     sum: Vec<f32>,
 }
 
@@ -94,20 +95,19 @@ fn columns(stage: &StageModel, prep: &Prepared, k: usize) -> Columns {
         start[j + 1] += start[j];
     }
     let total = start[n] as usize;
-    let (mut pixel, mut weight) = (vec![0u32; total], vec![0f32; total]);
+    let (mut pixel, mut light) = (vec![0u32; total], vec![0f32; total]);
     let mut next = start.clone();
     for q in 0..t.row_start.len() - 1 {
         for e in t.row_start[q] as usize..t.row_start[q + 1] as usize {
             if keep(e) {
                 let j = t.camera_pixel[e] as usize;
                 let at = next[j] as usize;
-                // Shares of the point's light: the measured ones, made to add up to 1.
-                (pixel[at], weight[at]) = (q as u32, t.weight[e] / sum[j]);
+                (pixel[at], light[at]) = (q as u32, t.weight[e] / sum[j] * prep.geometry.eta[j * kn + k]);
                 next[j] += 1;
             }
         }
     }
-    Columns { start, pixel, weight, sum }
+    Columns { start, pixel, light, sum }
 }
 
 /// Bilinear sample of a projector's outputs at `c` (pixel centres at integers), clamped to
@@ -157,8 +157,7 @@ fn delivered(
             Some(col) => {
                 for a in col.start[i] as usize..col.start[i + 1] as usize {
                     let o = out[col.pixel[a] as usize];
-                    let w = col.weight[a] * eta;
-                    (0..3).for_each(|c| e[c] += w * o[c]);
+                    (0..3).for_each(|c| e[c] += col.light[a] * o[c]);
                 }
             }
             None => {
@@ -218,9 +217,16 @@ pub fn has_footprints(stage: &StageModel) -> bool {
 }
 
 /// Refines `draft.frames` in place over `params.footprint_rounds` rounds towards the demand
-/// they were made for (`draft.demand`); `None` (frames untouched) when no rounds are asked for
-/// or the model has no measured footprints.
-pub fn refine(stage: &StageModel, prep: &Prepared, params: &Params, draft: &mut Draft) -> Option<Refinement> {
+/// they were made for (`draft.demand`), through the stage's `footprints`
+/// ([`Footprints::of`]); `None` (frames untouched) when no rounds are asked for or the model
+/// has no measured footprints.
+pub fn refine(
+    stage: &StageModel,
+    prep: &Prepared,
+    footprints: &Footprints,
+    params: &Params,
+    draft: &mut Draft,
+) -> Option<Refinement> {
     if params.footprint_rounds == 0 || !has_footprints(stage) {
         return None;
     }
@@ -231,7 +237,7 @@ pub fn refine(stage: &StageModel, prep: &Prepared, params: &Params, draft: &mut 
     for (&i, d) in draft.idx.iter().zip(&draft.demand) {
         want[i as usize] = d.map(|v| v as f32);
     }
-    let Footprints(cols) = Footprints::of(stage, prep);
+    let cols = &footprints.0;
     let mut out = outputs(stage, &draft.frames);
 
     // Per camera pixel, demand minus the light the footprints say the outputs give.
@@ -242,7 +248,7 @@ pub fn refine(stage: &StageModel, prep: &Prepared, params: &Params, draft: &mut 
                 if want[i][0].is_nan() {
                     return [0.0; 3];
                 }
-                let e = delivered(stage, geom, &cols, out, i);
+                let e = delivered(stage, geom, cols, out, i);
                 std::array::from_fn(|c| want[i][c] - e[c])
             })
             .collect()
@@ -282,33 +288,68 @@ pub fn refine(stage: &StageModel, prep: &Prepared, params: &Params, draft: &mut 
             })
         })
         .collect();
-    for _ in 0..params.footprint_rounds {
-        // Each projector takes its Eq. 12 share of every point's shortfall, in its own output
-        // units, averaged over its pixel's footprint on the worked points.
-        for (k, o) in out.iter_mut().enumerate() {
-            let t = &stage.transport[k];
-            o.par_iter_mut().enumerate().for_each(|(q, o)| {
-                let (mut num, mut den) = ([0.0f32; 3], [0.0f32; 3]);
-                for e in t.row_start[q] as usize..t.row_start[q + 1] as usize {
-                    let i = t.camera_pixel[e] as usize;
-                    if i >= n || want[i][0].is_nan() || !cols[k].measured(i) {
-                        continue;
-                    }
+    // Each projector takes its Eq. 12 share of every point's shortfall, in its own output
+    // units, averaged over its pixel's footprint on the worked points, each point weighed as
+    // above: projector pixel q moves by RELAX `sum_e w_e v_i s_ik r_i / sum_e w_e v_i` over
+    // its transport entries e, where i is the entry's camera pixel, w_e its weight over i's
+    // sum of measured shares, v_i the point's weight, s_ik = Eq. 12 weight / eta_ik the
+    // projector's share of the point's light and r_i the shortfall. Only r_i changes from
+    // round to round, so the rest is worked out once: per camera pixel `v_i s_ik / sum` (`pull`;
+    // 0 where the projector does not work it) and per projector pixel RELAX over the
+    // denominator (`step`), and a round is one pass over the entries.
+    let (pull, step): (Vec<_>, Vec<_>) = (0..kn)
+        .map(|k| {
+            let col = &cols[k];
+            let (pull, norm): (Vec<[f32; 3]>, Vec<[f32; 3]>) = (0..n)
+                .into_par_iter()
+                .map(|i| {
                     let eta = geom.eta[i * kn + k];
-                    if eta <= 0.0 {
-                        continue;
+                    if want[i][0].is_nan() || !col.measured(i) || eta <= 0.0 {
+                        return ([0.0; 3], [0.0; 3]);
                     }
-                    let w = t.weight[e] / cols[k].sum[i];
-                    let share = draft.weights[i * kn + k] / eta;
-                    (0..3).for_each(|c| {
-                        let v = weigh[i][c];
-                        num[c] += w * v * share * res[i][c];
-                        den[c] += w * v;
-                    });
+                    let (v, share) = (weigh[i], draft.weights[i * kn + k] / eta);
+                    (v.map(|v| v * share / col.sum[i]), v.map(|v| v / col.sum[i]))
+                })
+                .unzip();
+            let t = &stage.transport[k];
+            let step = (0..t.row_start.len() - 1)
+                .into_par_iter()
+                .map(|q| {
+                    let mut den = [0.0f32; 3];
+                    for e in t.row_start[q] as usize..t.row_start[q + 1] as usize {
+                        if let Some(v) = norm.get(t.camera_pixel[e] as usize) {
+                            (0..3).for_each(|c| den[c] += t.weight[e] * v[c]);
+                        }
+                    }
+                    den.map(|d| if d > 0.0 { RELAX / d } else { 0.0 })
+                })
+                .collect::<Vec<[f32; 3]>>();
+            (pull, step)
+        })
+        .unzip();
+    // Per camera pixel, this round: its pull on the projector times its shortfall.
+    let mut pulled = vec![[0.0f32; 3]; n];
+    for _ in 0..params.footprint_rounds {
+        for (k, o) in out.iter_mut().enumerate() {
+            pulled
+                .par_iter_mut()
+                .zip(&pull[k])
+                .zip(&res)
+                .for_each(|((g, p), r)| *g = std::array::from_fn(|c| p[c] * r[c]));
+            let t = &stage.transport[k];
+            o.par_iter_mut().zip(&step[k]).enumerate().for_each(|(q, (o, step))| {
+                if step.iter().all(|&s| s == 0.0) {
+                    return;
+                }
+                let mut num = [0.0f32; 3];
+                for e in t.row_start[q] as usize..t.row_start[q + 1] as usize {
+                    if let Some(g) = pulled.get(t.camera_pixel[e] as usize) {
+                        (0..3).for_each(|c| num[c] += t.weight[e] * g[c]);
+                    }
                 }
                 for c in 0..3 {
-                    if den[c] > 0.0 {
-                        o[c] = (o[c] + RELAX * num[c] / den[c]).clamp(0.0, caps[k][q][c]);
+                    if step[c] > 0.0 {
+                        o[c] = (o[c] + step[c] * num[c]).clamp(0.0, caps[k][q][c]);
                     }
                 }
             });

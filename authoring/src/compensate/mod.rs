@@ -554,11 +554,14 @@ pub fn compensate_on(
             None => draft_cpu(stage, prep, target, &p),
         }
     };
+    // The footprints turned around once, where a refinement or a judgement needs them.
+    let footprints = std::cell::LazyCell::new(|| footprint::Footprints::of(stage, prep));
     // A draft refined over `rounds`, unseen light darkened, and the guarantee on the 8-bit
     // frames (fix 3).
     let finish = |mut draft: Draft, rounds: u32| -> Candidate {
         let p = Params { footprint_rounds: rounds, ..params.clone() };
-        let refinement = footprint::refine(stage, prep, &p, &mut draft);
+        let refinement =
+            (rounds > 0).then(|| footprint::refine(stage, prep, &footprints, &p, &mut draft)).flatten();
         // Light that would land where the model cannot bound it stays dark.
         let unseen_dark = guarantee::darken_unknown(&prep.landings, &mut draft.frames);
         tracing::debug!(ms = t0.elapsed().as_secs_f64() * 1e3, "compensate: draft done");
@@ -590,7 +593,7 @@ pub fn compensate_on(
     };
     let (chosen, clip_judged, clip_refined, dark) = if choose {
         let ClipChoice { chosen: c, judged, refined } =
-            choose_clip(stage, prep, target, params, asked, &draft_at, &finish)?;
+            choose_clip(stage, prep, &footprints, target, params, asked, &draft_at, &finish)?;
         let dark = below_black(stage, target, &c.draft.weights, c.draft.scale).len();
         (c, judged, refined, dark)
     } else {
@@ -694,9 +697,11 @@ pub fn compensate_on(
 /// (the formula's order; empty where the stage has no footprints or no rounds are asked for).
 /// Where none can be judged (no point, no scale: every error infinite) the asked fraction
 /// stays; the first of equals is the smaller fraction.
+#[allow(clippy::too_many_arguments)]
 fn choose_clip(
     stage: &StageModel,
     prep: &Prepared,
+    footprints: &footprint::Footprints,
     target: &LinearImage,
     params: &Params,
     asked: Draft,
@@ -705,9 +710,8 @@ fn choose_clip(
 ) -> Result<ClipChoice, CompensateError> {
     let idx = work_points(stage, &prep.geometry, target);
     let sample: Vec<u32> = idx.iter().step_by(idx.len().div_ceil(AUTO_SAMPLES).max(1)).copied().collect();
-    let footprints = footprint::Footprints::of(stage, prep);
     let error_of = |c: &Candidate, rounds: u32| -> f64 {
-        let view = footprint::modelled_view(stage, prep, &footprints, &c.draft.frames, &sample);
+        let view = footprint::modelled_view(stage, prep, footprints, &c.draft.frames, &sample);
         let error = view_error(target, &sample, &view, c.draft.scale);
         tracing::info!(
             clip_fraction = c.draft.clip_fraction,
