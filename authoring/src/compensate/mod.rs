@@ -557,7 +557,8 @@ pub fn compensate_on(
     // The footprints turned around once, where a refinement or a judgement needs them.
     let footprints = std::cell::LazyCell::new(|| footprint::Footprints::of(stage, prep));
     // A draft refined over `rounds`, unseen light darkened, and the guarantee on the 8-bit
-    // frames (fix 3).
+    // frames (fix 3). `refine` does nothing at 0 rounds either; asking first keeps the
+    // footprints unbuilt where no round and no judgement needs them.
     let finish = |mut draft: Draft, rounds: u32| -> Candidate {
         let p = Params { footprint_rounds: rounds, ..params.clone() };
         let refinement =
