@@ -8,15 +8,14 @@ first=${1:?first seed}
 last=${2:?last seed}
 shift 2
 cd "$(dirname "$0")/.."
-cargo build --release -q --bin restage-author
-bin="$(cargo metadata --format-version 1 --no-deps | sed -n 's/.*"target_directory":"\([^"]*\)".*/\1/p')/release/restage-author"
+author() { cargo run --release -q --bin restage-author -- "$@"; }
 echo "| seed | vase / bowl / jar |"
 echo "| --- | --- |"
 log=$(mktemp)
 trap 'rm -f "$log"' EXIT
 all=()
 for ((s = first; s <= last; s++)); do
-    if ! out=$("$bin" eval classify --seed "$s" "$@" 2>"$log"); then
+    if ! out=$(author eval classify --seed "$s" "$@" 2>"$log"); then
         cat "$log" >&2
         exit 1
     fi
