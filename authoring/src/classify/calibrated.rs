@@ -28,7 +28,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::kmeans::{Features, Precision, lloyd_metric, mahalanobis2};
 use super::weights::{fit_weights, pair_differences};
-use super::{ClassifyError, LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, Picks};
+use super::{ClassifyError, LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, Picks, ReviewRegion};
 use crate::color::{D65_XY, SRGB_TO_XYZ, linear_srgb_to_xyy};
 use crate::imgio::LinearImage;
 
@@ -92,6 +92,11 @@ pub const DEFAULT_PRIOR_PICKS: f64 = 3.0;
 pub struct Classification {
     pub labels: LabelMap,
     pub palette: Palette,
+    /// The regions whose class the context passes changed from the one their colour gave
+    /// ([`super::review`]), largest first: where a pick confirms or corrects the result.
+    pub review: Vec<ReviewRegion>,
+    /// The per-pixel rule's labels, before those passes (what `review` compares with).
+    pub by_colour: LabelMap,
 }
 
 /// Per-pixel xyY as f32, with black at the D65 chromaticity (see [`crate::color::xyz_to_xyy`]).
@@ -291,6 +296,7 @@ pub fn classify(
     }
     let mut labels = initial_labels(photo.data.len(), mask)?;
     let mut res = lloyd_metric(&features, &init, Some(&metrics), &mut labels, opts.max_iterations);
+    let by_colour = labels.clone();
     if opts.merge_soft {
         // Pixels within the spread of their class's picks (squared Mahalanobis distance
         // under the 99 % point of chi-square with 3 degrees of freedom).
@@ -313,6 +319,7 @@ pub fn classify(
         let changed = super::within::relabel_faded_within(photo, &mut labels, k, &reps_rgb, &idx, &opts.loss);
         info!(changed, "relabelled faded paint within its ground");
     }
+    let review = super::review::relabelled_regions(&by_colour, &labels, w as usize, h as usize);
     // Edges after regions: the edge pass takes each mixed pixel's paints from the classes
     // beside it, which must already be right (unmixing first also fixes rows of mixed pixels
     // that tie a faded band to the ground, but it lost more than it gained on held-out seeds).
@@ -346,7 +353,8 @@ pub fn classify(
         iterations: res.iterations,
         converged: res.converged,
     };
-    Ok(Classification { labels, palette })
+    let by_colour = LabelMap::from_vec(w, h, by_colour)?;
+    Ok(Classification { labels, palette, review, by_colour })
 }
 
 /// Mean linear RGB of each class's pixels (zero for an empty class); chunked, deterministic.

@@ -13,6 +13,7 @@ pub mod kmeans;
 mod palette;
 pub mod picks;
 pub mod regions;
+pub mod review;
 pub mod synthetic;
 pub mod weights;
 pub mod within;
@@ -21,4 +22,5 @@ pub use calibrated::{Classification, ClassifyOptions, DEFAULT_PRIOR_PICKS, class
 pub use error::ClassifyError;
 pub use palette::{LabelMap, MASKED, PALETTE_VERSION, Palette, PaletteClass, output_paths, preview};
 pub use picks::{PickColour, PickRect, Picks, picks_from_labels};
+pub use review::{Review, ReviewRegion};
 pub use weights::{WeightFit, fit_weights};

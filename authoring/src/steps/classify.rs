@@ -1,6 +1,6 @@
 //! The classify step (`restage-author classify PHOTO --picks PICKS --out DIR`): colour
 //! classification of a diffusely lit photo (paper §4.1) into `labels.png`, `palette.json` and
-//! `preview.png`.
+//! `preview.png`, and the regions to confirm (`review.json`, `review.png`).
 
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
@@ -11,6 +11,7 @@ use anyhow::{Context, Result, bail};
 use clap::Args;
 use restage_authoring::classify::{self, ClassifyOptions, Picks};
 use restage_authoring::imgio::LinearImage;
+use tracing::info;
 
 #[derive(Args, Debug)]
 // Negative numbers are values, to be refused with a clear message rather than taken for flags.
@@ -53,6 +54,8 @@ pub struct ClassifySummary {
     pub converged: bool,
     /// Time of the classification itself (no file I/O).
     pub compute: Duration,
+    /// Regions the context passes relabelled, listed in `review.json` for the conservator.
+    pub review: usize,
 }
 
 impl std::fmt::Display for ClassifySummary {
@@ -71,7 +74,15 @@ impl std::fmt::Display for ClassifySummary {
                 (false, _) => " (not converged)",
             },
             self.compute.as_secs_f64()
-        )
+        )?;
+        if self.review > 0 {
+            write!(
+                f,
+                "; {} regions relabelled by their surroundings, to confirm with a pick (review.json, review.png)",
+                self.review
+            )?;
+        }
+        Ok(())
     }
 }
 
@@ -115,9 +126,23 @@ pub fn classify_files(
     let (labels_path, palette_path, preview_path) = classify::output_paths(out);
     result.labels.save(&labels_path)?;
     result.palette.save(&palette_path)?;
-    classify::preview(&result.labels, &result.palette)
-        .save(&preview_path)
-        .with_context(|| format!("writing {}", preview_path.display()))?;
+    let preview = classify::preview(&result.labels, &result.palette);
+    preview.save(&preview_path).with_context(|| format!("writing {}", preview_path.display()))?;
+    let (review_json, review_png) = classify::review::output_paths(out);
+    classify::Review::new(&result.review, &result.palette).save(&review_json)?;
+    classify::review::review_image(&preview, &result.review, &result.by_colour.data, &result.labels.data)
+        .save(&review_png)
+        .with_context(|| format!("writing {}", review_png.display()))?;
+    for r in result.review.iter().take(3) {
+        let name = |c: u8| result.palette.classes.get(c as usize).map_or("?", |p| p.name.as_str());
+        info!(
+            pixels = r.pixels,
+            at = ?r.pick_at,
+            "a region its colour calls {} was given {} by its surroundings: a pick there confirms or corrects it",
+            name(r.by_colour),
+            name(r.given)
+        );
+    }
     let p = &result.palette;
     Ok(ClassifySummary {
         classes: p.classes.len(),
@@ -125,6 +150,7 @@ pub fn classify_files(
         iterations: p.iterations,
         converged: p.converged,
         compute,
+        review: result.review.len(),
     })
 }
 
