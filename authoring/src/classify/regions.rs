@@ -20,7 +20,9 @@
 //! below leave out pixels one pixel wide in their row or column ([`Region::thick`]):
 //! - a region holding a pick of its own class (the conservator named it) yields only in
 //!   part: a watershed on colour steps from its picks and its typical pixels on one side and
-//!   the soft border on the other splits it along its sharpest line (`flood`);
+//!   the soft border on the other splits it along its sharpest line (`flood`); a picked pixel,
+//!   and one a split kept because the picks reach it by soft steps, is never given away in a
+//!   later round;
 //! - a loss class (bare substrate) never spreads over a soft border: a loss has an edge, so a
 //!   loss-coloured region that fades into paint is that paint;
 //! - otherwise the smaller region takes the class of the larger (a faded or stained patch
@@ -343,9 +345,9 @@ fn flood(
     let (w, h) = (photo.width as usize, photo.height as usize);
     // A pick is the conservator's word on its pixel, and a pixel an earlier round's split kept
     // as one the picks reach by soft steps is settled: neither is a soft-border seed of another
-    // class. Otherwise a region in a
-    // smooth gradient, which has no sharp line to split along, is eroded round by round
-    // (a faded patch with a pick in it went from 593 pixels to 21 in five rounds).
+    // class. Otherwise a region in a smooth gradient, which has no sharp line to split along,
+    // is eroded round by round (a faded patch with a pick in it went from 593 pixels to 21 in
+    // five rounds).
     let own: &[u8] = labels;
     let picked: std::collections::HashSet<usize> = picks
         .iter()
